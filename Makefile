@@ -1,0 +1,52 @@
+# Two commands do everything: `make run` and `make test`.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+# Debian packages: Mesa for headless MuJoCo rendering (EGL and OSMesa), Chromium for browser tests.
+SYSTEM_PACKAGES := libegl1 libegl-mesa0 libgl1 libgles2 libosmesa6 chromium
+export MUJOCO_GL ?= egl
+export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
+
+.PHONY: run test lint install system-packages bench clean
+
+run: install
+	$(BIN)/raq migrate
+	$(BIN)/raq up --demo
+
+test: install
+	$(BIN)/ruff check app learner sim tests bench
+	@rm -f $(VENV)/pytest-exit-code
+	$(BIN)/python -m pytest $(PYTEST_ARGS); code=$$?; echo $$code > $(VENV)/pytest-exit-code; exit $$code
+
+lint: install
+	$(BIN)/ruff check app learner sim tests bench
+
+install: system-packages $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+system-packages:
+	@missing=""; for p in $(SYSTEM_PACKAGES); do \
+	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "install ok installed" || missing="$$missing $$p"; \
+	done; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "Installing system packages:$$missing"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
+	  else \
+	    echo "Missing system packages:$$missing"; \
+	    echo "Install them with: sudo apt-get install$$missing"; exit 1; \
+	  fi; \
+	fi
+
+bench: install
+	$(BIN)/python bench/env_speed.py
+	$(BIN)/python bench/learner_speed.py
+
+clean:
+	rm -rf $(VENV) data .pytest_cache

@@ -1,0 +1,55 @@
+"""One Settings object for every process, read from RAQ_* environment variables (and .env)."""
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic import AliasChoices, Field, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Configuration shared by `raq serve`, `raq learn`, `raq oracle` and `raq up`."""
+
+    model_config = SettingsConfigDict(env_prefix="RAQ_", env_file=".env", extra="ignore")
+
+    data_dir: Path = Field(default=Path("data"), description="Where the SQLite file and checkpoints live.")
+    database_url: str | None = Field(
+        default=None,
+        validation_alias=AliasChoices("RAQ_DATABASE_URL", "DATABASE_URL"),
+        description="SQLAlchemy URL; default a SQLite file under data_dir. PostgreSQL: postgresql+psycopg://…",
+    )
+    host: str = Field(default="127.0.0.1", description="Address the web server binds.")
+    port: int = Field(default=8000, ge=1, le=65535, description="Port the web server binds.")
+    api_token: str | None = Field(
+        default=None, description="When set, every write needs 'Authorization: Bearer <token>'."
+    )
+    server_url: str | None = Field(default=None, description="Base URL the oracle talks to.")
+    max_upload_bytes: int = Field(default=20 * 1024 * 1024, description="Largest accepted upload.")
+    max_image_pixels: int = Field(default=40_000_000, description="Largest accepted decoded image (w*h).")
+    stale_heartbeat_seconds: float = Field(
+        default=60.0, description="A training run whose heartbeat is older than this is reclaimed."
+    )
+
+    @field_validator("api_token")
+    @classmethod
+    def _empty_token_is_none(cls, value: str | None) -> str | None:
+        return value or None
+
+    @property
+    def resolved_database_url(self) -> str:
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'raq.sqlite3').resolve()}"
+
+    @property
+    def checkpoint_dir(self) -> Path:
+        return self.data_dir / "checkpoints"
+
+    @property
+    def base_url(self) -> str:
+        return self.server_url or f"http://{self.host}:{self.port}"
+
+
+@lru_cache
+def get_settings() -> Settings:
+    return Settings()

@@ -1,0 +1,24 @@
+"""The store the learner and the server share: models and keyword-only functions, no torch, no FastAPI."""
+
+from app.store.errors import Conflict, InvalidInput, NotFound, StoreError
+from app.store.models import GoalExample, GoalSet, Metric, Query, QueryStatus, Rollout, Run, RunStatus
+from app.store.store import AnsweredQuery, GoalImage, Store, seconds_since
+
+__all__ = [
+    "AnsweredQuery",
+    "Conflict",
+    "GoalExample",
+    "GoalImage",
+    "GoalSet",
+    "InvalidInput",
+    "Metric",
+    "NotFound",
+    "Query",
+    "QueryStatus",
+    "Rollout",
+    "Run",
+    "RunStatus",
+    "Store",
+    "StoreError",
+    "seconds_since",
+]

@@ -1,0 +1,175 @@
+"""SQLAlchemy 2 typed models: goal sets, runs, queries, metrics, events and rollouts.
+
+Images live in the database (LargeBinary, deferred so that listing rows never loads them), so that
+several hosts can share one PostgreSQL. Checkpoints, which hold the replay buffer, live on disk.
+"""
+
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    DateTime,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    LargeBinary,
+    String,
+    Text,
+    TypeDecorator,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, deferred, mapped_column
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+class UTCDateTime(TypeDecorator[datetime]):
+    """Timezone-aware UTC datetimes on every backend (SQLite stores naive values)."""
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Any) -> datetime | None:
+        if value is not None and value.tzinfo is not None:
+            value = value.astimezone(UTC).replace(tzinfo=None)
+        return value
+
+    def process_result_value(self, value: datetime | None, dialect: Any) -> datetime | None:
+        if value is not None and value.tzinfo is None:
+            value = value.replace(tzinfo=UTC)
+        return value
+
+
+class Base(DeclarativeBase):
+    pass
+
+
+class RunStatus:
+    QUEUED = "queued"
+    STARTING = "starting"
+    TRAINING = "training"
+    STOPPED = "stopped"
+    FINISHED = "finished"
+    FAILED = "failed"
+    ACTIVE = (STARTING, TRAINING)
+    ALL = (QUEUED, STARTING, TRAINING, STOPPED, FINISHED, FAILED)
+
+
+class QueryStatus:
+    PENDING = "pending"
+    ANSWERED = "answered"
+    SKIPPED = "skipped"
+    ALL = (PENDING, ANSWERED, SKIPPED)
+
+
+class GoalSet(Base):
+    __tablename__ = "goal_sets"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), unique=True)
+    image_size: Mapped[int] = mapped_column(Integer, default=48)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class GoalExample(Base):
+    __tablename__ = "goal_examples"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    goal_set_id: Mapped[int] = mapped_column(ForeignKey("goal_sets.id", ondelete="CASCADE"), index=True)
+    filename: Mapped[str] = mapped_column(String(255))
+    source: Mapped[str] = mapped_column(String(50), default="upload")
+    original_media_type: Mapped[str] = mapped_column(String(50))
+    width: Mapped[int] = mapped_column(Integer)
+    height: Mapped[int] = mapped_column(Integer)
+    original: Mapped[bytes] = deferred(mapped_column(LargeBinary, nullable=False))
+    model_png: Mapped[bytes] = deferred(mapped_column(LargeBinary, nullable=False))
+    display_png: Mapped[bytes] = deferred(mapped_column(LargeBinary, nullable=False))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class Run(Base):
+    __tablename__ = "runs"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), default="")
+    env_id: Mapped[str] = mapped_column(String(200))
+    algorithm: Mapped[str] = mapped_column(String(50))
+    config: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    seed: Mapped[int] = mapped_column(Integer, default=0)
+    goal_set_id: Mapped[int | None] = mapped_column(ForeignKey("goal_sets.id", ondelete="SET NULL"))
+    status: Mapped[str] = mapped_column(String(20), default=RunStatus.QUEUED, index=True)
+    status_reason: Mapped[str] = mapped_column(Text, default="")
+    stop_requested: Mapped[bool] = mapped_column(Boolean, default=False)
+    worker: Mapped[str | None] = mapped_column(String(200))
+    heartbeat_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    step: Mapped[int] = mapped_column(BigInteger, default=0)
+    total_steps: Mapped[int] = mapped_column(BigInteger, default=0)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    started_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+
+
+class Query(Base):
+    __tablename__ = "queries"
+    __table_args__ = (Index("ix_queries_run_status", "run_id", "status"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
+    env_step: Mapped[int] = mapped_column(BigInteger)
+    score: Mapped[float] = mapped_column(Float)
+    strategy: Mapped[str] = mapped_column(String(50), default="argmax")
+    info: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    ground_truth_success: Mapped[float | None] = mapped_column(Float)
+    model_png: Mapped[bytes] = deferred(mapped_column(LargeBinary, nullable=False))
+    display_png: Mapped[bytes] = deferred(mapped_column(LargeBinary, nullable=False))
+    status: Mapped[str] = mapped_column(String(20), default=QueryStatus.PENDING)
+    answer: Mapped[bool | None] = mapped_column(Boolean)
+    labeler: Mapped[str | None] = mapped_column(String(200))
+    answered_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    # Increases with every answer in the whole store: the learner asks for answers "since" a value of it.
+    answer_seq: Mapped[int | None] = mapped_column(BigInteger, unique=True)
+    # Set when the learner has taken the answer into its classifier; after that it cannot be undone.
+    used_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class Metric(Base):
+    __tablename__ = "metrics"
+    __table_args__ = (Index("ix_metrics_run_name_step", "run_id", "name", "step"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"))
+    step: Mapped[int] = mapped_column(BigInteger)
+    name: Mapped[str] = mapped_column(String(100))
+    value: Mapped[float] = mapped_column(Float)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class Event(Base):
+    __tablename__ = "events"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int | None] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
+    level: Mapped[str] = mapped_column(String(20), default="info")
+    message: Mapped[str] = mapped_column(Text)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class Rollout(Base):
+    __tablename__ = "rollouts"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
+    env_step: Mapped[int] = mapped_column(BigInteger)
+    kind: Mapped[str] = mapped_column(String(20), default="eval")
+    media_type: Mapped[str] = mapped_column(String(50), default="image/gif")
+    frame_count: Mapped[int] = mapped_column(Integer)
+    episode_return: Mapped[float | None] = mapped_column(Float)
+    success: Mapped[float | None] = mapped_column(Float)
+    data: Mapped[bytes] = deferred(mapped_column(LargeBinary, nullable=False))
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)

@@ -1,0 +1,574 @@
+"""The store: every read and write the learner and the server make, as keyword-only methods.
+
+Both processes open their own `Store` on the same database URL; they share nothing else. Rows come
+back detached (expire_on_commit=False); binary columns are deferred and read with the *_image methods.
+"""
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+from sqlalchemy import delete, func, or_, select, update
+from sqlalchemy.exc import IntegrityError
+
+from app.store.db import Database
+from app.store.errors import Conflict, InvalidInput, NotFound
+from app.store.models import (
+    Event,
+    GoalExample,
+    GoalSet,
+    Metric,
+    Query,
+    QueryStatus,
+    Rollout,
+    Run,
+    RunStatus,
+    utcnow,
+)
+
+
+@dataclass(frozen=True)
+class GoalImage:
+    """A goal example's pixels at model resolution, as the learner reads them."""
+
+    id: int
+    model_png: bytes
+    original: bytes
+
+
+@dataclass(frozen=True)
+class AnsweredQuery:
+    """An answer as the learner consumes it."""
+
+    query_id: int
+    answer_seq: int
+    success: bool
+    model_png: bytes
+    env_step: int
+
+
+class Store(Database):
+    """The one API over the database for the learner, the server and the tools."""
+
+    # ---------------------------------------------------------------- goal sets and examples
+    def create_goal_set(self, *, name: str, image_size: int = 48) -> GoalSet:
+        name = name.strip()
+        if not name:
+            raise InvalidInput("a goal set needs a name")
+        if not 8 <= image_size <= 512:
+            raise InvalidInput("image_size must be between 8 and 512")
+        try:
+            with self.writing() as session:
+                goal_set = GoalSet(name=name, image_size=image_size)
+                session.add(goal_set)
+                session.flush()
+                return goal_set
+        except IntegrityError as error:
+            raise Conflict(f"a goal set named {name!r} exists already") from error
+
+    def list_goal_sets(self) -> list[tuple[GoalSet, int]]:
+        """Goal sets with their example counts."""
+        with self.reading() as session:
+            counts = (
+                select(GoalExample.goal_set_id, func.count().label("n")).group_by(GoalExample.goal_set_id).subquery()
+            )
+            rows = session.execute(
+                select(GoalSet, func.coalesce(counts.c.n, 0))
+                .outerjoin(counts, counts.c.goal_set_id == GoalSet.id)
+                .order_by(GoalSet.id)
+            ).all()
+            return [(goal_set, int(count)) for goal_set, count in rows]
+
+    def get_goal_set(self, *, goal_set_id: int) -> GoalSet:
+        with self.reading() as session:
+            goal_set = session.get(GoalSet, goal_set_id)
+            if goal_set is None:
+                raise NotFound(f"goal set {goal_set_id} not found")
+            return goal_set
+
+    def find_goal_set(self, *, name: str) -> GoalSet | None:
+        with self.reading() as session:
+            return session.scalars(select(GoalSet).where(GoalSet.name == name)).first()
+
+    def delete_goal_set(self, *, goal_set_id: int) -> None:
+        with self.writing() as session:
+            goal_set = session.get(GoalSet, goal_set_id)
+            if goal_set is None:
+                raise NotFound(f"goal set {goal_set_id} not found")
+            session.delete(goal_set)
+
+    def add_goal_example(
+        self,
+        *,
+        goal_set_id: int,
+        filename: str,
+        original: bytes,
+        original_media_type: str,
+        width: int,
+        height: int,
+        model_png: bytes,
+        display_png: bytes,
+        source: str = "upload",
+    ) -> GoalExample:
+        with self.writing() as session:
+            if session.get(GoalSet, goal_set_id) is None:
+                raise NotFound(f"goal set {goal_set_id} not found")
+            example = GoalExample(
+                goal_set_id=goal_set_id,
+                filename=filename[:255],
+                source=source,
+                original_media_type=original_media_type,
+                width=width,
+                height=height,
+                original=original,
+                model_png=model_png,
+                display_png=display_png,
+            )
+            session.add(example)
+            session.flush()
+            return example
+
+    def list_goal_examples(self, *, goal_set_id: int) -> list[GoalExample]:
+        with self.reading() as session:
+            return list(
+                session.scalars(
+                    select(GoalExample).where(GoalExample.goal_set_id == goal_set_id).order_by(GoalExample.id)
+                )
+            )
+
+    def get_goal_example(self, *, example_id: int) -> GoalExample:
+        with self.reading() as session:
+            example = session.get(GoalExample, example_id)
+            if example is None:
+                raise NotFound(f"goal example {example_id} not found")
+            return example
+
+    def goal_example_image(self, *, example_id: int, kind: str) -> bytes:
+        """kind: 'original', 'model' or 'display'."""
+        column = {
+            "original": GoalExample.original,
+            "model": GoalExample.model_png,
+            "display": GoalExample.display_png,
+        }.get(kind)
+        if column is None:
+            raise InvalidInput("image kind must be original, model or display")
+        with self.reading() as session:
+            data = session.scalar(select(column).where(GoalExample.id == example_id))
+            if data is None:
+                raise NotFound(f"goal example {example_id} not found")
+            return data
+
+    def goal_images(self, *, goal_set_id: int) -> list[GoalImage]:
+        with self.reading() as session:
+            rows = session.execute(
+                select(GoalExample.id, GoalExample.model_png, GoalExample.original)
+                .where(GoalExample.goal_set_id == goal_set_id)
+                .order_by(GoalExample.id)
+            ).all()
+            return [GoalImage(id=row[0], model_png=row[1], original=row[2]) for row in rows]
+
+    def delete_goal_example(self, *, example_id: int) -> None:
+        with self.writing() as session:
+            deleted = session.execute(delete(GoalExample).where(GoalExample.id == example_id)).rowcount
+            if not deleted:
+                raise NotFound(f"goal example {example_id} not found")
+
+    # ---------------------------------------------------------------- runs
+    def create_run(
+        self,
+        *,
+        env_id: str,
+        algorithm: str,
+        config: dict[str, Any],
+        seed: int = 0,
+        goal_set_id: int | None = None,
+        total_steps: int = 0,
+        name: str = "",
+    ) -> Run:
+        with self.writing() as session:
+            if goal_set_id is not None and session.get(GoalSet, goal_set_id) is None:
+                raise NotFound(f"goal set {goal_set_id} not found")
+            run = Run(
+                name=name,
+                env_id=env_id,
+                algorithm=algorithm,
+                config=config,
+                seed=seed,
+                goal_set_id=goal_set_id,
+                total_steps=total_steps,
+                status=RunStatus.QUEUED,
+            )
+            session.add(run)
+            session.flush()
+            session.add(Event(run_id=run.id, level="info", message="run queued"))
+            return run
+
+    def get_run(self, *, run_id: int) -> Run:
+        with self.reading() as session:
+            run = session.get(Run, run_id)
+            if run is None:
+                raise NotFound(f"run {run_id} not found")
+            return run
+
+    def list_runs(self) -> list[Run]:
+        with self.reading() as session:
+            return list(session.scalars(select(Run).order_by(Run.id.desc())))
+
+    def count_runs(self) -> int:
+        with self.reading() as session:
+            return int(session.scalar(select(func.count()).select_from(Run)) or 0)
+
+    def claim_next_run(self, *, worker: str, stale_after_seconds: float = 60.0) -> Run | None:
+        """Atomically take the oldest queued run, or an active run whose learner stopped beating.
+
+        The UPDATE … WHERE status = <what we saw> makes the claim atomic: of two workers racing for
+        the same row, exactly one changes it.
+        """
+        stale_before = utcnow() - timedelta(seconds=stale_after_seconds)
+        claimable = or_(
+            Run.status == RunStatus.QUEUED,
+            (Run.status.in_(RunStatus.ACTIVE)) & (Run.heartbeat_at < stale_before),
+        )
+        with self.writing() as session:
+            candidates = session.execute(
+                select(Run.id, Run.status, Run.heartbeat_at).where(claimable).order_by(Run.id).limit(5)
+            ).all()
+            for run_id, status, heartbeat_at in candidates:
+                now = utcnow()
+                claimed = session.execute(
+                    update(Run)
+                    .where(Run.id == run_id, Run.status == status, Run.heartbeat_at.is_not_distinct_from(heartbeat_at))
+                    .values(
+                        status=RunStatus.STARTING,
+                        status_reason="",
+                        worker=worker,
+                        heartbeat_at=now,
+                        started_at=func.coalesce(Run.started_at, now),
+                    )
+                ).rowcount
+                if claimed:
+                    resumed = status != RunStatus.QUEUED
+                    message = f"claimed by {worker}" + (" (its last learner stopped beating)" if resumed else "")
+                    session.add(Event(run_id=run_id, level="info", message=message))
+                    return session.get(Run, run_id)
+            return None
+
+    def heartbeat(self, *, run_id: int, worker: str, step: int | None = None, status: str | None = None) -> bool:
+        """Record that `worker` is alive on the run. Returns False when it should stop (stop asked,
+        or the run was taken from it)."""
+        values: dict[str, Any] = {"heartbeat_at": utcnow()}
+        if step is not None:
+            values["step"] = step
+        if status is not None:
+            values["status"] = status
+        with self.writing() as session:
+            updated = session.execute(
+                update(Run)
+                .where(Run.id == run_id, Run.worker == worker, Run.status.in_(RunStatus.ACTIVE))
+                .values(**values)
+            ).rowcount
+            if not updated:
+                return False
+            return not session.scalar(select(Run.stop_requested).where(Run.id == run_id))
+
+    def set_run_status(self, *, run_id: int, status: str, reason: str = "", worker: str | None = None) -> None:
+        """Set a terminal or intermediate status. With `worker`, only while that worker holds the run."""
+        if status not in RunStatus.ALL:
+            raise InvalidInput(f"unknown run status {status!r}")
+        values: dict[str, Any] = {"status": status, "status_reason": reason[:2000]}
+        if status in (RunStatus.FINISHED, RunStatus.FAILED, RunStatus.STOPPED):
+            values["finished_at"] = utcnow()
+            values["stop_requested"] = False
+        with self.writing() as session:
+            statement = update(Run).where(Run.id == run_id)
+            if worker is not None:
+                statement = statement.where(Run.worker == worker)
+            if not session.execute(statement.values(**values)).rowcount:
+                raise NotFound(f"run {run_id} not found" + (f" for worker {worker}" if worker else ""))
+            level = "error" if status == RunStatus.FAILED else "info"
+            message = f"status: {status}" + (f" ({reason})" if reason else "")
+            session.add(Event(run_id=run_id, level=level, message=message))
+
+    def request_stop(self, *, run_id: int) -> Run:
+        """Stop a run: a queued run stops at once, an active one when its learner next beats."""
+        with self.writing() as session:
+            run = session.get(Run, run_id)
+            if run is None:
+                raise NotFound(f"run {run_id} not found")
+            if run.status == RunStatus.QUEUED:
+                run.status, run.finished_at = RunStatus.STOPPED, utcnow()
+                session.add(Event(run_id=run_id, message="stopped before a learner took it"))
+            elif run.status in RunStatus.ACTIVE:
+                run.stop_requested = True
+                session.add(Event(run_id=run_id, message="stop requested"))
+            else:
+                raise Conflict(f"run {run_id} is {run.status}; only queued or active runs can be stopped")
+            session.flush()
+            return run
+
+    def resume_run(self, *, run_id: int) -> Run:
+        """Queue a stopped or failed run again; the learner resumes it from its last checkpoint."""
+        with self.writing() as session:
+            run = session.get(Run, run_id)
+            if run is None:
+                raise NotFound(f"run {run_id} not found")
+            if run.status not in (RunStatus.STOPPED, RunStatus.FAILED):
+                raise Conflict(f"run {run_id} is {run.status}; only stopped or failed runs can be resumed")
+            run.status, run.status_reason, run.stop_requested = RunStatus.QUEUED, "", False
+            run.finished_at = None
+            session.add(Event(run_id=run_id, message="resume requested: queued"))
+            session.flush()
+            return run
+
+    # ---------------------------------------------------------------- queries
+    def post_query(
+        self,
+        *,
+        run_id: int,
+        env_step: int,
+        model_png: bytes,
+        display_png: bytes,
+        score: float,
+        strategy: str = "argmax",
+        info: dict[str, Any] | None = None,
+        ground_truth_success: float | None = None,
+    ) -> Query:
+        with self.writing() as session:
+            if session.get(Run, run_id) is None:
+                raise NotFound(f"run {run_id} not found")
+            query = Query(
+                run_id=run_id,
+                env_step=env_step,
+                model_png=model_png,
+                display_png=display_png,
+                score=float(score),
+                strategy=strategy,
+                info=info or {},
+                ground_truth_success=ground_truth_success,
+                status=QueryStatus.PENDING,
+            )
+            session.add(query)
+            session.flush()
+            return query
+
+    def get_query(self, *, query_id: int) -> Query:
+        with self.reading() as session:
+            query = session.get(Query, query_id)
+            if query is None:
+                raise NotFound(f"query {query_id} not found")
+            return query
+
+    def list_queries(
+        self, *, run_id: int | None = None, status: str | None = None, limit: int = 200, oldest_first: bool = False
+    ) -> list[Query]:
+        if status is not None and status not in QueryStatus.ALL:
+            raise InvalidInput(f"status must be one of {', '.join(QueryStatus.ALL)}")
+        statement = select(Query)
+        if run_id is not None:
+            statement = statement.where(Query.run_id == run_id)
+        if status is not None:
+            statement = statement.where(Query.status == status)
+        statement = statement.order_by(Query.id if oldest_first else Query.id.desc()).limit(limit)
+        with self.reading() as session:
+            return list(session.scalars(statement))
+
+    def pending_queries(self, *, run_id: int | None = None, limit: int = 200) -> list[Query]:
+        return self.list_queries(run_id=run_id, status=QueryStatus.PENDING, limit=limit, oldest_first=True)
+
+    def query_counts(self, *, run_id: int) -> dict[str, int]:
+        """asked, pending, answered, yes, skipped."""
+        with self.reading() as session:
+            rows = session.execute(
+                select(Query.status, Query.answer, func.count())
+                .where(Query.run_id == run_id)
+                .group_by(Query.status, Query.answer)
+            ).all()
+        counts = {"asked": 0, "pending": 0, "answered": 0, "yes": 0, "skipped": 0}
+        for status, answer, n in rows:
+            counts["asked"] += n
+            counts[status] = counts.get(status, 0) + n
+            if status == QueryStatus.ANSWERED and answer:
+                counts["yes"] += n
+        return counts
+
+    def query_image(self, *, query_id: int, resolution: str) -> bytes:
+        """resolution: 'model' (what the learner saw) or 'display' (the larger render)."""
+        column = {"model": Query.model_png, "display": Query.display_png}.get(resolution)
+        if column is None:
+            raise InvalidInput("resolution must be model or display")
+        with self.reading() as session:
+            data = session.scalar(select(column).where(Query.id == query_id))
+            if data is None:
+                raise NotFound(f"query {query_id} not found")
+            return data
+
+    def answer_query(self, *, query_id: int, success: bool, labeler: str = "") -> Query:
+        """Record an answer. The same answer again is a no-op; a different one raises Conflict and the
+        first stays. Skipped queries can still be answered."""
+        for _attempt in range(5):
+            try:
+                return self._answer_query_once(query_id=query_id, success=success, labeler=labeler)
+            except IntegrityError:  # two answers took the same answer_seq at once (PostgreSQL): retry
+                continue
+        raise Conflict("could not record the answer: too many concurrent answers, try again")
+
+    def _answer_query_once(self, *, query_id: int, success: bool, labeler: str) -> Query:
+        with self.writing() as session:
+            query = session.get(Query, query_id)
+            if query is None:
+                raise NotFound(f"query {query_id} not found")
+            if query.status == QueryStatus.ANSWERED:
+                if query.answer == success:
+                    return query
+                first = "yes" if query.answer else "no"
+                raise Conflict(f"query {query_id} was already answered {first!r}; the first answer is kept")
+            next_seq = (session.scalar(select(func.max(Query.answer_seq))) or 0) + 1
+            query.status, query.answer, query.labeler = QueryStatus.ANSWERED, success, labeler[:200] or None
+            query.answered_at, query.answer_seq = utcnow(), next_seq
+            session.flush()
+            return query
+
+    def skip_query(self, *, query_id: int, labeler: str = "") -> Query:
+        with self.writing() as session:
+            query = session.get(Query, query_id)
+            if query is None:
+                raise NotFound(f"query {query_id} not found")
+            if query.status == QueryStatus.ANSWERED:
+                raise Conflict(f"query {query_id} was already answered; the answer is kept")
+            query.status, query.labeler, query.answered_at = QueryStatus.SKIPPED, labeler[:200] or None, utcnow()
+            session.flush()
+            return query
+
+    def undo_answer(self, *, query_id: int) -> Query:
+        """Put an answered or skipped query back to pending, while the learner has not used it."""
+        with self.writing() as session:
+            query = session.get(Query, query_id)
+            if query is None:
+                raise NotFound(f"query {query_id} not found")
+            if query.status == QueryStatus.PENDING:
+                raise Conflict(f"query {query_id} has no answer to undo")
+            if query.used_at is not None:
+                raise Conflict(f"query {query_id}: the learner has already used this answer")
+            previous = "skip" if query.status == QueryStatus.SKIPPED else ("yes" if query.answer else "no")
+            query.status, query.answer, query.labeler = QueryStatus.PENDING, None, None
+            query.answered_at, query.answer_seq = None, None
+            session.add(Event(run_id=query.run_id, message=f"answer {previous!r} to query {query_id} undone"))
+            session.flush()
+            return query
+
+    def new_answers(self, *, run_id: int, since_seq: int = 0) -> list[AnsweredQuery]:
+        """Answers to the run's queries with answer_seq > since_seq, oldest first. Marks them used in
+        the same transaction, so an answer the learner has read can no longer be undone."""
+        with self.writing() as session:
+            rows = session.execute(
+                select(Query.id, Query.answer_seq, Query.answer, Query.model_png, Query.env_step)
+                .where(Query.run_id == run_id, Query.status == QueryStatus.ANSWERED, Query.answer_seq > since_seq)
+                .order_by(Query.answer_seq)
+            ).all()
+            if rows:
+                session.execute(
+                    update(Query)
+                    .where(Query.id.in_([row[0] for row in rows]), Query.used_at.is_(None))
+                    .values(used_at=utcnow())
+                )
+            return [
+                AnsweredQuery(
+                    query_id=row[0], answer_seq=row[1], success=bool(row[2]), model_png=row[3], env_step=row[4]
+                )
+                for row in rows
+            ]
+
+    # ---------------------------------------------------------------- metrics, events, rollouts
+    def record_metrics(self, *, run_id: int, step: int, values: dict[str, float]) -> None:
+        now = utcnow()
+        with self.writing() as session:
+            session.add_all(
+                Metric(run_id=run_id, step=step, name=name, value=float(value), created_at=now)
+                for name, value in values.items()
+            )
+
+    def metrics(self, *, run_id: int, since_step: int = -1, names: Iterable[str] | None = None) -> list[Metric]:
+        statement = select(Metric).where(Metric.run_id == run_id, Metric.step > since_step)
+        if names is not None:
+            statement = statement.where(Metric.name.in_(list(names)))
+        with self.reading() as session:
+            return list(session.scalars(statement.order_by(Metric.step, Metric.id)))
+
+    def latest_metric(self, *, run_id: int, name: str) -> float | None:
+        with self.reading() as session:
+            return session.scalar(
+                select(Metric.value)
+                .where(Metric.run_id == run_id, Metric.name == name)
+                .order_by(Metric.step.desc(), Metric.id.desc())
+                .limit(1)
+            )
+
+    def record_event(self, *, run_id: int | None, message: str, level: str = "info") -> None:
+        with self.writing() as session:
+            session.add(Event(run_id=run_id, level=level, message=message))
+
+    def events(self, *, run_id: int | None = None, since_id: int = 0, limit: int = 200) -> list[Event]:
+        statement = select(Event).where(Event.id > since_id)
+        if run_id is not None:
+            statement = statement.where(Event.run_id == run_id)
+        with self.reading() as session:
+            return list(session.scalars(statement.order_by(Event.id.desc()).limit(limit)))
+
+    def record_rollout(
+        self,
+        *,
+        run_id: int,
+        env_step: int,
+        data: bytes,
+        frame_count: int,
+        media_type: str = "image/gif",
+        kind: str = "eval",
+        episode_return: float | None = None,
+        success: float | None = None,
+        keep: int = 3,
+    ) -> Rollout:
+        """Store a rollout animation; only the newest `keep` of the run's rollouts are kept."""
+        with self.writing() as session:
+            rollout = Rollout(
+                run_id=run_id,
+                env_step=env_step,
+                kind=kind,
+                media_type=media_type,
+                data=data,
+                frame_count=frame_count,
+                episode_return=episode_return,
+                success=success,
+            )
+            session.add(rollout)
+            session.flush()
+            old_ids = session.scalars(
+                select(Rollout.id).where(Rollout.run_id == run_id).order_by(Rollout.id.desc()).offset(keep)
+            ).all()
+            if old_ids:
+                session.execute(delete(Rollout).where(Rollout.id.in_(old_ids)))
+            return rollout
+
+    def latest_rollout(self, *, run_id: int) -> Rollout | None:
+        with self.reading() as session:
+            return session.scalars(
+                select(Rollout).where(Rollout.run_id == run_id).order_by(Rollout.id.desc()).limit(1)
+            ).first()
+
+    def rollout_data(self, *, rollout_id: int) -> bytes:
+        with self.reading() as session:
+            data = session.scalar(select(Rollout.data).where(Rollout.id == rollout_id))
+            if data is None:
+                raise NotFound(f"rollout {rollout_id} not found")
+            return data
+
+    # ---------------------------------------------------------------- helpers
+    def ping(self) -> bool:
+        with self.reading() as session:
+            return session.scalar(select(1)) == 1
+
+
+def seconds_since(moment: datetime | None) -> float | None:
+    if moment is None:
+        return None
+    return (datetime.now(UTC) - moment).total_seconds()
