@@ -1,0 +1,169 @@
+"""The `raq` command: serve, learn, up, oracle, goals, migrate."""
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+
+from app.settings import Settings, get_settings
+
+LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1"}
+
+
+def _migrate(settings: Settings) -> None:
+    from app.migrate import upgrade
+
+    upgrade(settings.resolved_database_url)
+
+
+def cmd_migrate(args: argparse.Namespace) -> int:
+    settings = get_settings()
+    _migrate(settings)
+    print(f"database at head: {settings.resolved_database_url}", flush=True)
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    settings = get_settings()
+    host = args.host or settings.host
+    port = args.port or settings.port
+    if host not in LOOPBACK_HOSTS and not settings.api_token:
+        print(
+            f"refusing to bind {host}: without RAQ_API_TOKEN the server binds 127.0.0.1 only "
+            "(set RAQ_API_TOKEN to serve other hosts)",
+            file=sys.stderr,
+        )
+        return 2
+    _migrate(settings)
+    uvicorn.run("app.main:create_app", factory=True, host=host, port=port, log_level=args.log_level)
+    return 0
+
+
+def cmd_learn(args: argparse.Namespace) -> int:
+    settings = get_settings()
+    _migrate(settings)
+    from learner.worker import work
+
+    return work(settings, worker_name=args.name, once=args.once)
+
+
+def cmd_oracle(args: argparse.Namespace, rest: Sequence[str]) -> int:
+    from app.oracle import main as oracle_main
+
+    return oracle_main(list(rest))
+
+
+def cmd_goals(args: argparse.Namespace, rest: Sequence[str]) -> int:
+    from sim.goals import main as goals_main
+
+    return goals_main(list(rest))
+
+
+def _pump(prefix: str, stream, lock: threading.Lock) -> None:  # type: ignore[no-untyped-def]
+    for line in iter(stream.readline, ""):
+        with lock:
+            sys.stdout.write(f"{prefix} | {line}")
+            sys.stdout.flush()
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    """The web server and one learner worker, their logs in one terminal; Ctrl-C stops both."""
+    settings = get_settings()
+    _migrate(settings)
+    if args.demo:
+        from app.demo import ensure_demo_run
+
+        ensure_demo_run(settings)
+    raq = [sys.executable, "-m", "app.cli"]
+    serve = raq + ["serve"] + (["--port", str(args.port)] if args.port else [])
+    # Own process groups: a terminal's Ctrl-C reaches only this process, which then asks each child once.
+    spawn = {"stdout": subprocess.PIPE, "stderr": subprocess.STDOUT, "text": True, "bufsize": 1, "process_group": 0}
+    children = {
+        "web    ": subprocess.Popen(serve, **spawn),
+        "learner": subprocess.Popen(raq + ["learn"], **spawn),
+    }
+    lock = threading.Lock()
+    for prefix, child in children.items():
+        threading.Thread(target=_pump, args=(prefix, child.stdout, lock), daemon=True).start()
+    port = args.port or settings.port
+    print(f"raq up: web on http://{settings.host}:{port}  (Ctrl-C stops both)", flush=True)
+
+    stopping = threading.Event()
+
+    def _stop(signum: int, _frame: object) -> None:
+        stopping.set()
+
+    signal.signal(signal.SIGINT, _stop)
+    signal.signal(signal.SIGTERM, _stop)
+    code = 0
+    while not stopping.is_set():
+        exited = [(name, child.returncode) for name, child in children.items() if child.poll() is not None]
+        if exited:
+            name, code = exited[0]
+            print(f"raq up: {name.strip()} exited with code {code}; stopping the other", flush=True)
+            code = code or 1
+            break
+        time.sleep(0.2)
+    for child in children.values():
+        if child.poll() is None:
+            child.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + 30
+    for child in children.values():
+        try:
+            child.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+    print("raq up: stopped", flush=True)
+    return code
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="raq", description=__doc__)
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    serve = commands.add_parser("serve", help="run the web server (UI and REST API)")
+    serve.add_argument("--host", default=None, help="default: RAQ_HOST or 127.0.0.1")
+    serve.add_argument("--port", type=int, default=None, help="default: RAQ_PORT or 8000")
+    serve.add_argument("--log-level", default="info")
+    serve.set_defaults(handler=cmd_serve)
+
+    learn = commands.add_parser("learn", help="run a learner worker that claims queued runs and trains them")
+    learn.add_argument("--name", default=None, help="worker name (default: host:pid)")
+    learn.add_argument("--once", action="store_true", help="train at most one run, then exit")
+    learn.set_defaults(handler=cmd_learn)
+
+    up = commands.add_parser("up", help="web server and one learner worker together")
+    up.add_argument("--port", type=int, default=None)
+    up.add_argument("--demo", action="store_true", help="when there are no runs, start a demo pusher run")
+    up.set_defaults(handler=cmd_up)
+
+    migrate = commands.add_parser("migrate", help="apply database migrations")
+    migrate.set_defaults(handler=cmd_migrate)
+
+    oracle = commands.add_parser("oracle", help="answer queries from simulated ground truth (REST API)", add_help=False)
+    oracle.set_defaults(passthrough=cmd_oracle)
+    goals = commands.add_parser("goals", help="render goal example PNGs of a simulated task", add_help=False)
+    goals.set_defaults(passthrough=cmd_goals)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    parser = build_parser()
+    args, rest = parser.parse_known_args(argv)
+    if hasattr(args, "passthrough"):
+        return args.passthrough(args, rest)
+    if rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    return args.handler(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

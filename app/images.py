@@ -1,0 +1,134 @@
+"""Uploaded goal photos: decode and check them, then make the model's and the display's PNG copies.
+
+Only PNG, JPEG and WebP are accepted. Every check happens before anything is stored, and every failure
+is an `ImageRejected` whose message says what was wrong with which file.
+"""
+
+import io
+import warnings
+from dataclasses import dataclass
+
+from PIL import Image, ImageOps, UnidentifiedImageError
+
+ACCEPTED_FORMATS: dict[str, str] = {"PNG": "image/png", "JPEG": "image/jpeg", "WEBP": "image/webp"}
+DISPLAY_MAX_SIDE = 256
+
+
+class ImageRejected(ValueError):
+    """An upload that cannot be used; `status_code` is 400 (bad image) or 413 (too large)."""
+
+    def __init__(self, message: str, *, status_code: int = 400) -> None:
+        super().__init__(message)
+        self.message = message
+        self.status_code = status_code
+
+
+@dataclass(frozen=True)
+class PreparedImage:
+    """One checked upload, ready to store."""
+
+    filename: str
+    original: bytes
+    media_type: str
+    width: int
+    height: int
+    model_png: bytes
+    display_png: bytes
+
+
+def decode_upload(data: bytes, *, max_bytes: int, max_pixels: int) -> Image.Image:
+    """Decode PNG, JPEG or WebP bytes into an RGB image, fully loaded and upright (EXIF orientation).
+
+    Raises ImageRejected: empty, above `max_bytes` (413), not an image or another format, truncated,
+    or more than `max_pixels` pixels (a decompression bomb, 413).
+    """
+    if not data:
+        raise ImageRejected("the file is empty")
+    if len(data) > max_bytes:
+        raise ImageRejected(
+            f"the file is {len(data):,} bytes; the limit is {max_bytes:,} bytes", status_code=413
+        )
+    # Pillow warns above MAX_IMAGE_PIXELS and refuses above twice that; we refuse above it (the check
+    # on the header's size below comes first, this is the second line of defence).
+    Image.MAX_IMAGE_PIXELS = max_pixels
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            image = Image.open(io.BytesIO(data))
+            if image.format not in ACCEPTED_FORMATS:
+                raise ImageRejected(f"{image.format or 'this'} images are not accepted; use PNG, JPEG or WebP")
+            width, height = image.size
+            if width * height > max_pixels:
+                raise ImageRejected(
+                    f"the image is {width}x{height} = {width * height:,} pixels; the limit is {max_pixels:,}",
+                    status_code=413,
+                )
+            if width < 1 or height < 1:
+                raise ImageRejected("the image has no pixels")
+            image.load()
+            image = ImageOps.exif_transpose(image)
+    except ImageRejected:
+        raise
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as error:
+        raise ImageRejected(f"the image has too many pixels: {error}", status_code=413) from error
+    except UnidentifiedImageError as error:
+        raise ImageRejected("not an image Pillow can read; use PNG, JPEG or WebP") from error
+    except (OSError, SyntaxError, ValueError, EOFError) as error:  # truncated or corrupt data
+        raise ImageRejected(f"the image is damaged or truncated ({error})") from error
+    return _to_rgb(image)
+
+
+def _to_rgb(image: Image.Image) -> Image.Image:
+    """Flatten transparency onto white (as the image looks in a viewer) and drop other modes."""
+    if image.mode in ("RGBA", "LA") or (image.mode == "P" and "transparency" in image.info):
+        rgba = image.convert("RGBA")
+        background = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+        return Image.alpha_composite(background, rgba).convert("RGB")
+    return image.convert("RGB")
+
+
+def center_square(image: Image.Image) -> Image.Image:
+    width, height = image.size
+    side = min(width, height)
+    left, top = (width - side) // 2, (height - side) // 2
+    return image.crop((left, top, left + side, top + side))
+
+
+def _png_bytes(image: Image.Image) -> bytes:
+    buffer = io.BytesIO()
+    image.save(buffer, format="PNG", optimize=True)
+    return buffer.getvalue()
+
+
+def to_png(image: Image.Image, size: int) -> bytes:
+    """The model's view: centre-crop to a square, resize to size x size (area filter), PNG."""
+    square = center_square(image.convert("RGB"))
+    return _png_bytes(square.resize((size, size), Image.Resampling.LANCZOS, reducing_gap=3.0))
+
+
+def to_display_png(image: Image.Image, max_side: int = DISPLAY_MAX_SIDE) -> bytes:
+    """A copy for people: the whole picture, aspect kept, no side above `max_side`."""
+    display = image.convert("RGB").copy()
+    display.thumbnail((max_side, max_side), Image.Resampling.LANCZOS)
+    return _png_bytes(display)
+
+
+def prepare_upload(
+    data: bytes, *, filename: str, model_size: int, max_bytes: int, max_pixels: int
+) -> PreparedImage:
+    """Check one upload and make its copies; ImageRejected's message names the file."""
+    try:
+        image = decode_upload(data, max_bytes=max_bytes, max_pixels=max_pixels)
+    except ImageRejected as error:
+        raise ImageRejected(f"{filename}: {error.message}", status_code=error.status_code) from error
+    with Image.open(io.BytesIO(data)) as header:
+        media_type = ACCEPTED_FORMATS[header.format or ""]
+    return PreparedImage(
+        filename=filename,
+        original=data,
+        media_type=media_type,
+        width=image.width,
+        height=image.height,
+        model_png=to_png(image, model_size),
+        display_png=to_display_png(image),
+    )

@@ -1,0 +1,284 @@
+"""Request and response bodies of the REST API."""
+
+import math
+from datetime import datetime
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from app.store import Event, GoalExample, GoalSet, Query, Rollout, Run, seconds_since
+
+
+class HealthOut(BaseModel):
+    status: str
+    database: str
+
+
+# ---------------------------------------------------------------- goal sets
+class GoalSetCreate(BaseModel):
+    name: str = Field(min_length=1, max_length=200, examples=["pusher puck on target"])
+    image_size: int = Field(default=48, ge=8, le=512, description="Side of the model's square view in pixels.")
+
+
+class GoalExampleOut(BaseModel):
+    id: int
+    goal_set_id: int
+    filename: str
+    source: str
+    original_media_type: str
+    width: int
+    height: int
+    created_at: datetime
+    original_url: str
+    model_url: str
+    display_url: str
+
+    @classmethod
+    def of(cls, example: GoalExample) -> "GoalExampleOut":
+        base = f"/api/goal-examples/{example.id}/image"
+        return cls(
+            id=example.id,
+            goal_set_id=example.goal_set_id,
+            filename=example.filename,
+            source=example.source,
+            original_media_type=example.original_media_type,
+            width=example.width,
+            height=example.height,
+            created_at=example.created_at,
+            original_url=f"{base}?kind=original",
+            model_url=f"{base}?kind=model",
+            display_url=f"{base}?kind=display",
+        )
+
+
+class GoalSetOut(BaseModel):
+    id: int
+    name: str
+    image_size: int
+    created_at: datetime
+    example_count: int
+
+    @classmethod
+    def of(cls, goal_set: GoalSet, example_count: int) -> "GoalSetOut":
+        return cls(
+            id=goal_set.id,
+            name=goal_set.name,
+            image_size=goal_set.image_size,
+            created_at=goal_set.created_at,
+            example_count=example_count,
+        )
+
+
+class GoalSetDetail(GoalSetOut):
+    examples: list[GoalExampleOut]
+
+
+# ---------------------------------------------------------------- runs
+class RunCreate(BaseModel):
+    """A new run. `env_id`, `algorithm` and `seed` may be given here or inside `config`; here wins."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "env_id": "VisualPusher-v0",
+                    "algorithm": "vice_raq",
+                    "goal_set_id": 1,
+                    "seed": 0,
+                    "config": {"query_every": 2000, "query_budget": 20, "total_steps": 100000},
+                }
+            ]
+        }
+    )
+
+    name: str = Field(default="", max_length=200)
+    env_id: str | None = None
+    algorithm: str | None = None
+    seed: int | None = None
+    goal_set_id: int | None = None
+    config: dict[str, Any] = Field(default_factory=dict, description="TrainConfig fields to override.")
+
+
+class RolloutOut(BaseModel):
+    id: int
+    env_step: int
+    kind: str
+    media_type: str
+    frame_count: int
+    episode_return: float | None
+    success: float | None
+    created_at: datetime
+    url: str
+
+    @classmethod
+    def of(cls, rollout: Rollout) -> "RolloutOut":
+        return cls(
+            id=rollout.id,
+            env_step=rollout.env_step,
+            kind=rollout.kind,
+            media_type=rollout.media_type,
+            frame_count=rollout.frame_count,
+            episode_return=rollout.episode_return,
+            success=rollout.success,
+            created_at=rollout.created_at,
+            url=f"/api/runs/{rollout.run_id}/rollout/latest?v={rollout.id}",
+        )
+
+
+class QueryCountsOut(BaseModel):
+    asked: int = 0
+    pending: int = 0
+    answered: int = 0
+    yes: int = 0
+    skipped: int = 0
+
+
+class RunOut(BaseModel):
+    id: int
+    name: str
+    env_id: str
+    algorithm: str
+    seed: int
+    goal_set_id: int | None
+    status: str
+    status_reason: str
+    stop_requested: bool
+    worker: str | None
+    step: int
+    total_steps: int
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    heartbeat_at: datetime | None
+    heartbeat_age_seconds: float | None
+    success_rate: float | None = Field(description="Latest eval/success_rate.")
+    steps_per_second: float | None = Field(description="Latest perf/steps_per_second.")
+    eta_seconds: float | None = Field(description="Latest perf/eta_seconds.")
+    queries: QueryCountsOut
+
+    @classmethod
+    def of(
+        cls,
+        run: Run,
+        *,
+        queries: dict[str, int],
+        success_rate: float | None,
+        steps_per_second: float | None,
+        eta_seconds: float | None,
+    ) -> "RunOut":
+        return cls(
+            id=run.id,
+            name=run.name,
+            env_id=run.env_id,
+            algorithm=run.algorithm,
+            seed=run.seed,
+            goal_set_id=run.goal_set_id,
+            status=run.status,
+            status_reason=run.status_reason,
+            stop_requested=run.stop_requested,
+            worker=run.worker,
+            step=run.step,
+            total_steps=run.total_steps,
+            created_at=run.created_at,
+            started_at=run.started_at,
+            finished_at=run.finished_at,
+            heartbeat_at=run.heartbeat_at,
+            heartbeat_age_seconds=seconds_since(run.heartbeat_at),
+            success_rate=success_rate,
+            steps_per_second=steps_per_second,
+            eta_seconds=eta_seconds,
+            queries=QueryCountsOut(**queries),
+        )
+
+
+class RunDetail(RunOut):
+    config: dict[str, Any]
+    latest_rollout: RolloutOut | None
+
+
+# ---------------------------------------------------------------- queries
+class QueryOut(BaseModel):
+    id: int
+    run_id: int
+    env_step: int
+    score: float = Field(description="The classifier's logit f_psi that made the learner ask.")
+    probability: float = Field(description="sigmoid(score): the classifier's belief that this is a success.")
+    strategy: str
+    info: dict[str, Any]
+    ground_truth_success: float | None
+    status: str
+    answer: bool | None
+    labeler: str | None
+    answered_at: datetime | None
+    used_by_learner: bool
+    created_at: datetime
+    model_image_url: str
+    display_image_url: str
+
+    @classmethod
+    def of(cls, query: Query) -> "QueryOut":
+        base = f"/api/queries/{query.id}/image"
+        return cls(
+            id=query.id,
+            run_id=query.run_id,
+            env_step=query.env_step,
+            score=query.score,
+            probability=_sigmoid(query.score),
+            strategy=query.strategy,
+            info=query.info or {},
+            ground_truth_success=query.ground_truth_success,
+            status=query.status,
+            answer=query.answer,
+            labeler=query.labeler,
+            answered_at=query.answered_at,
+            used_by_learner=query.used_at is not None,
+            created_at=query.created_at,
+            model_image_url=f"{base}?resolution=model",
+            display_image_url=f"{base}?resolution=display",
+        )
+
+
+def _sigmoid(value: float) -> float:
+    if value >= 0:
+        return 1.0 / (1.0 + math.exp(-value))
+    exp = math.exp(value)
+    return exp / (1.0 + exp)
+
+
+class AnswerIn(BaseModel):
+    success: bool = Field(description="True: this image shows success.")
+    labeler: str = Field(default="", max_length=200, description="Who answered (a name, or 'oracle').")
+
+
+class SkipIn(BaseModel):
+    labeler: str = Field(default="", max_length=200)
+
+
+class QueueItem(BaseModel):
+    """The next pending query with what a person needs to judge it."""
+
+    query: QueryOut | None
+    pending: int = Field(description="Pending queries (of the run, or of all runs).")
+    run: RunOut | None
+    goal_examples: list[GoalExampleOut]
+
+
+# ---------------------------------------------------------------- metrics and events
+class MetricsOut(BaseModel):
+    run_id: int
+    last_step: int = Field(description="Largest step returned (or since_step); pass it back as since_step.")
+    series: dict[str, list[tuple[int, float]]] = Field(description="name -> [[step, value], …], by step.")
+
+
+class EventOut(BaseModel):
+    id: int
+    run_id: int | None
+    level: str
+    message: str
+    created_at: datetime
+
+    @classmethod
+    def of(cls, event: Event) -> "EventOut":
+        return cls(
+            id=event.id, run_id=event.run_id, level=event.level, message=event.message, created_at=event.created_at
+        )
