@@ -1,0 +1,60 @@
+"""The web app: REST API under /api, HTML pages, static files. `create_app` is uvicorn's factory."""
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
+
+from app.routers import events, goal_sets, health, metrics, pages, queries, runs
+from app.settings import Settings, get_settings
+from app.store import Conflict, InvalidInput, NotFound, Store
+
+ROOT = Path(__file__).resolve().parent.parent
+STATIC_DIR = ROOT / "static"
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """One app with one Store, opened here and closed at shutdown. Migrations are applied by the CLI."""
+    settings = settings or get_settings()
+    store = Store(settings.resolved_database_url)
+
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        try:
+            yield
+        finally:
+            store.dispose()
+
+    app = FastAPI(
+        title="vice-raq",
+        summary="Teach a robot a visual skill from goal photos; answer its yes/no questions.",
+        version="0.1.0",
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    app.state.store = store
+
+    @app.exception_handler(NotFound)
+    async def _not_found(_request: Request, error: NotFound) -> JSONResponse:
+        return JSONResponse(status_code=404, content={"detail": str(error)})
+
+    @app.exception_handler(Conflict)
+    async def _conflict(_request: Request, error: Conflict) -> JSONResponse:
+        return JSONResponse(status_code=409, content={"detail": str(error)})
+
+    @app.exception_handler(InvalidInput)
+    async def _invalid(_request: Request, error: InvalidInput) -> JSONResponse:
+        return JSONResponse(status_code=400, content={"detail": str(error)})
+
+    app.include_router(health.router)
+    app.include_router(runs.router)
+    app.include_router(goal_sets.router)
+    app.include_router(queries.router)
+    app.include_router(metrics.router)
+    app.include_router(events.router)
+    app.include_router(pages.router)
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    return app

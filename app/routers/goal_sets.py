@@ -1,0 +1,124 @@
+"""Goal sets and their goal photos: create, upload (one or several at once), list, images, delete."""
+
+from pathlib import PurePosixPath, PureWindowsPath
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, File, HTTPException, Query, Response, UploadFile, status
+
+from app.deps import SettingsDep, StoreDep, WriteAuth
+from app.images import ImageRejected, PreparedImage, prepare_upload
+from app.schemas import GoalExampleOut, GoalSetCreate, GoalSetDetail, GoalSetOut
+
+router = APIRouter(tags=["goal sets"])
+
+IMAGE_CACHE = {"Cache-Control": "private, max-age=86400"}  # an example's pixels never change
+
+
+def _clean_filename(name: str | None, index: int) -> str:
+    base = PureWindowsPath(PurePosixPath(name or "").name).name.strip()
+    return base[:255] or f"upload-{index + 1}"
+
+
+@router.post("/api/goal-sets", status_code=status.HTTP_201_CREATED, response_model=GoalSetOut)
+def create_goal_set(body: GoalSetCreate, store: StoreDep, _auth: WriteAuth) -> GoalSetOut:
+    return GoalSetOut.of(store.create_goal_set(name=body.name, image_size=body.image_size), 0)
+
+
+@router.get("/api/goal-sets", response_model=list[GoalSetOut])
+def list_goal_sets(store: StoreDep) -> list[GoalSetOut]:
+    return [GoalSetOut.of(goal_set, count) for goal_set, count in store.list_goal_sets()]
+
+
+@router.get("/api/goal-sets/{goal_set_id}", response_model=GoalSetDetail)
+def get_goal_set(goal_set_id: int, store: StoreDep) -> GoalSetDetail:
+    goal_set = store.get_goal_set(goal_set_id=goal_set_id)
+    examples = [GoalExampleOut.of(example) for example in store.list_goal_examples(goal_set_id=goal_set_id)]
+    return GoalSetDetail(**GoalSetOut.of(goal_set, len(examples)).model_dump(), examples=examples)
+
+
+@router.delete("/api/goal-sets/{goal_set_id}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_goal_set(goal_set_id: int, store: StoreDep, _auth: WriteAuth) -> Response:
+    """Deletes the set and its photos; runs that used it keep running with what their learner loaded."""
+    store.delete_goal_set(goal_set_id=goal_set_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+@router.get("/api/goal-sets/{goal_set_id}/examples", response_model=list[GoalExampleOut])
+def list_goal_examples(goal_set_id: int, store: StoreDep) -> list[GoalExampleOut]:
+    store.get_goal_set(goal_set_id=goal_set_id)
+    return [GoalExampleOut.of(example) for example in store.list_goal_examples(goal_set_id=goal_set_id)]
+
+
+@router.post(
+    "/api/goal-sets/{goal_set_id}/examples",
+    status_code=status.HTTP_201_CREATED,
+    response_model=list[GoalExampleOut],
+    responses={400: {"description": "A file is not a usable image"}, 413: {"description": "A file is too large"}},
+)
+def upload_goal_examples(
+    goal_set_id: int,
+    files: Annotated[list[UploadFile], File(description="One or several PNG, JPEG or WebP photos of success.")],
+    store: StoreDep,
+    settings: SettingsDep,
+    _auth: WriteAuth,
+) -> list[GoalExampleOut]:
+    """Every file is checked before any is stored: one bad file rejects the whole upload."""
+    goal_set = store.get_goal_set(goal_set_id=goal_set_id)
+    if not files:
+        raise HTTPException(status_code=400, detail="no files were uploaded")
+    prepared: list[PreparedImage] = []
+    for index, upload in enumerate(files):
+        filename = _clean_filename(upload.filename, index)
+        data = upload.file.read(settings.max_upload_bytes + 1)
+        try:
+            prepared.append(
+                prepare_upload(
+                    data,
+                    filename=filename,
+                    model_size=goal_set.image_size,
+                    max_bytes=settings.max_upload_bytes,
+                    max_pixels=settings.max_image_pixels,
+                )
+            )
+        except ImageRejected as error:
+            raise HTTPException(
+                status_code=error.status_code, detail=f"{error.message} (nothing from this upload was stored)"
+            ) from None
+    stored = [
+        store.add_goal_example(
+            goal_set_id=goal_set_id,
+            filename=image.filename,
+            original=image.original,
+            original_media_type=image.media_type,
+            width=image.width,
+            height=image.height,
+            model_png=image.model_png,
+            display_png=image.display_png,
+        )
+        for image in prepared
+    ]
+    return [GoalExampleOut.of(example) for example in stored]
+
+
+@router.get(
+    "/api/goal-examples/{example_id}/image",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}, "image/jpeg": {}, "image/webp": {}}}},
+)
+def goal_example_image(
+    example_id: int,
+    store: StoreDep,
+    kind: Annotated[Literal["original", "model", "display"], Query()] = "display",
+) -> Response:
+    """original: the upload as sent; model: what the classifier sees; display: the whole photo, max 256 px."""
+    media_type = "image/png"
+    if kind == "original":
+        media_type = store.get_goal_example(example_id=example_id).original_media_type
+    data = store.goal_example_image(example_id=example_id, kind=kind)
+    return Response(content=data, media_type=media_type, headers=IMAGE_CACHE)
+
+
+@router.delete("/api/goal-examples/{example_id}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_goal_example(example_id: int, store: StoreDep, _auth: WriteAuth) -> Response:
+    store.delete_goal_example(example_id=example_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
