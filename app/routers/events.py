@@ -1,0 +1,21 @@
+"""What happened to a run, newest first."""
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query
+
+from app.deps import StoreDep
+from app.schemas import EventOut
+
+router = APIRouter(prefix="/api/runs", tags=["events"])
+
+
+@router.get("/{run_id}/events", response_model=list[EventOut])
+def run_events(
+    run_id: int,
+    store: StoreDep,
+    since_id: Annotated[int, Query(ge=0, description="Only events with id > since_id.")] = 0,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 200,
+) -> list[EventOut]:
+    store.get_run(run_id=run_id)
+    return [EventOut.of(event) for event in store.events(run_id=run_id, since_id=since_id, limit=limit)]

@@ -1,0 +1,204 @@
+"""HTML pages (Jinja2, no build step). They read through the store and write through the REST API."""
+
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Form, Request
+from fastapi.responses import HTMLResponse, RedirectResponse, Response
+from fastapi.templating import Jinja2Templates
+
+from app.deps import SESSION_COOKIE, SettingsDep, StoreDep, is_authorised, session_value
+from app.routers.runs import run_detail, run_out
+from app.schemas import GoalExampleOut, GoalSetOut
+from app.store import NotFound
+from learner.config import ALGORITHMS, TrainConfig
+
+TEMPLATES_DIR = Path(__file__).resolve().parent.parent.parent / "templates"
+templates = Jinja2Templates(directory=TEMPLATES_DIR)
+
+router = APIRouter(include_in_schema=False)
+
+FALLBACK_TASKS: dict[str, str] = {"pusher": "VisualPusher-v0", "door": "VisualDoor-v0", "picker": "VisualPicker-v0"}
+ALGORITHM_LABELS: dict[str, str] = {
+    "vice_raq": "VICE-RAQ: goal photos + active yes/no queries (recommended)",
+    "vice": "VICE: goal photos only, no queries",
+    "raq": "RAQ: goal photos + queries, negatives from the first epoch",
+    "naive_classifier": "Naive classifier: trained once on goal photos",
+    "sparse": "Sparse: the simulator's true success reward (no goal photos)",
+}
+SESSION_MAX_AGE = 30 * 24 * 3600
+
+
+@dataclass(frozen=True)
+class Task:
+    name: str
+    env_id: str
+
+
+@lru_cache(maxsize=1)
+def available_tasks() -> tuple[Task, ...]:
+    """The simulator's registered tasks; the three known ids while the sim package cannot be imported."""
+    try:
+        import sim  # noqa: PLC0415 - imported lazily: it pulls in MuJoCo
+
+        registered: dict[str, Any] = dict(sim.TASKS)
+    except Exception:  # noqa: BLE001 - no sim package (yet): fall back to the known ids
+        return tuple(Task(name, env_id) for name, env_id in FALLBACK_TASKS.items())
+    tasks = []
+    for name, task in registered.items():
+        env_id = task if isinstance(task, str) else getattr(task, "env_id", None)
+        if env_id is None and isinstance(task, dict):
+            env_id = task.get("env_id")
+        tasks.append(Task(str(name), str(env_id or FALLBACK_TASKS.get(name, name))))
+    return tuple(tasks) or tuple(Task(name, env_id) for name, env_id in FALLBACK_TASKS.items())
+
+
+def _page(request: Request, template: str, settings: Any, store: Any, status_code: int = 200, **context: Any):
+    pending = len(store.pending_queries(limit=10_000))
+    base = {
+        "auth_required": bool(settings.api_token),
+        "authorised": is_authorised(request, settings),
+        "pending_total": pending,
+        "path": request.url.path,
+    }
+    return templates.TemplateResponse(request, template, {**base, **context}, status_code=status_code)
+
+
+def _not_found(request: Request, settings: Any, store: Any, message: str):
+    return _page(request, "not_found.html", settings, store, status_code=404, message=message, title="Not found")
+
+
+@router.get("/", response_class=HTMLResponse)
+def runs_page(request: Request, settings: SettingsDep, store: StoreDep):
+    runs = [run_out(store, run).model_dump(mode="json") for run in store.list_runs()]
+    return _page(request, "runs.html", settings, store, runs=runs, title="Runs")
+
+
+@router.get("/runs/new", response_class=HTMLResponse)
+def new_run_page(request: Request, settings: SettingsDep, store: StoreDep, goal_set: int | None = None):
+    defaults = TrainConfig()
+    goal_sets = [GoalSetOut.of(goal_set_row, count) for goal_set_row, count in store.list_goal_sets()]
+    return _page(
+        request,
+        "new_run.html",
+        settings,
+        store,
+        title="New run",
+        tasks=available_tasks(),
+        algorithms=[(name, ALGORITHM_LABELS.get(name, name)) for name in ALGORITHMS],
+        goal_sets=goal_sets,
+        selected_goal_set=goal_set,
+        defaults=defaults,
+    )
+
+
+@router.get("/runs/{run_id}", response_class=HTMLResponse)
+def run_page(run_id: int, request: Request, settings: SettingsDep, store: StoreDep):
+    try:
+        run = run_detail(store, store.get_run(run_id=run_id))
+    except NotFound as error:
+        return _not_found(request, settings, store, str(error))
+    goal_set_name = None
+    if run.goal_set_id is not None:
+        try:
+            goal_set_name = store.get_goal_set(goal_set_id=run.goal_set_id).name
+        except NotFound:
+            goal_set_name = None
+    return _page(
+        request,
+        "run.html",
+        settings,
+        store,
+        title=f"Run {run.id}",
+        run=run.model_dump(mode="json"),
+        goal_set_name=goal_set_name,
+    )
+
+
+@router.get("/goal-sets", response_class=HTMLResponse)
+def goal_sets_page(request: Request, settings: SettingsDep, store: StoreDep):
+    goal_sets = []
+    for goal_set, count in store.list_goal_sets():
+        examples = store.list_goal_examples(goal_set_id=goal_set.id)[:6]
+        goal_sets.append((GoalSetOut.of(goal_set, count), [GoalExampleOut.of(example) for example in examples]))
+    return _page(request, "goal_sets.html", settings, store, title="Goal sets", goal_sets=goal_sets)
+
+
+@router.get("/goal-sets/{goal_set_id}", response_class=HTMLResponse)
+def goal_set_page(goal_set_id: int, request: Request, settings: SettingsDep, store: StoreDep):
+    try:
+        goal_set = store.get_goal_set(goal_set_id=goal_set_id)
+    except NotFound as error:
+        return _not_found(request, settings, store, str(error))
+    examples = [GoalExampleOut.of(example) for example in store.list_goal_examples(goal_set_id=goal_set_id)]
+    return _page(
+        request,
+        "goal_set.html",
+        settings,
+        store,
+        title=goal_set.name,
+        goal_set=GoalSetOut.of(goal_set, len(examples)),
+        examples=examples,
+        max_upload_bytes=settings.max_upload_bytes,
+    )
+
+
+@router.get("/queue", response_class=HTMLResponse)
+def queue_page(request: Request, settings: SettingsDep, store: StoreDep, run: int | None = None):
+    run_summary = None
+    if run is not None:
+        try:
+            run_summary = run_out(store, store.get_run(run_id=run))
+        except NotFound as error:
+            return _not_found(request, settings, store, str(error))
+    return _page(request, "queue.html", settings, store, title="Answer queue", run_id=run, run=run_summary)
+
+
+def _local_path(target: str | None) -> str:
+    """Only redirect within this site."""
+    if not target or not target.startswith("/") or target.startswith("//") or "\\" in target:
+        return "/"
+    return target
+
+
+@router.get("/login", response_class=HTMLResponse)
+def login_page(request: Request, settings: SettingsDep, store: StoreDep, next: str | None = None):
+    return _page(request, "login.html", settings, store, title="Log in", next=_local_path(next), error=None)
+
+
+@router.post("/login", response_model=None)
+def login(
+    request: Request,
+    settings: SettingsDep,
+    store: StoreDep,
+    token: Annotated[str, Form()] = "",
+    next: Annotated[str, Form()] = "/",
+) -> Response:
+    target = _local_path(next)
+    if not settings.api_token:
+        return RedirectResponse(target, status_code=303)
+    if token.strip() != settings.api_token:
+        return _page(
+            request, "login.html", settings, store, status_code=401, title="Log in", next=target,
+            error="That token is not right.",
+        )  # fmt: skip
+    response = RedirectResponse(target, status_code=303)
+    response.set_cookie(
+        SESSION_COOKIE,
+        session_value(settings.api_token),
+        max_age=SESSION_MAX_AGE,
+        httponly=True,
+        samesite="strict",
+        secure=request.url.scheme == "https",
+        path="/",
+    )
+    return response
+
+
+@router.post("/logout", response_model=None)
+def logout() -> Response:
+    response = RedirectResponse("/", status_code=303)
+    response.delete_cookie(SESSION_COOKIE, path="/")
+    return response

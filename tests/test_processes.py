@@ -1,0 +1,62 @@
+"""`raq up` starts the web server and a learner on one SQLite file, answers /health, and stops on Ctrl-C."""
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+from app.store import Store
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def wait_for_health(port: int, process: subprocess.Popen, timeout: float = 90) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert process.poll() is None, f"raq exited early with {process.returncode}"
+        try:
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/health", timeout=2) as response:
+                return json.loads(response.read())
+        except OSError:
+            time.sleep(0.5)
+    raise AssertionError("no answer on /health")
+
+
+def test_raq_up_serves_health_runs_a_learner_and_stops_cleanly(tmp_path: Path) -> None:
+    port = free_port()
+    env = {**os.environ, "RAQ_DATA_DIR": str(tmp_path), "RAQ_PORT": str(port), "PYTHONUNBUFFERED": "1"}
+    env.pop("RAQ_DATABASE_URL", None)
+    env.pop("DATABASE_URL", None)
+    log = (tmp_path / "up.log").open("w")
+    process = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", "up"], env=env, stdout=log, stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )  # fmt: skip
+    try:
+        assert wait_for_health(port, process) == {"status": "ok", "database": "ok"}
+        # The learner shares the same SQLite file: a run queued there is claimed by it.
+        store = Store(f"sqlite:///{tmp_path / 'raq.sqlite3'}")
+        run = store.create_run(env_id="no-such-env-v0", algorithm="sparse", config={"env_id": "no-such-env-v0"})
+        deadline = time.monotonic() + 60
+        while store.get_run(run_id=run.id).status in ("queued", "starting", "training"):
+            assert time.monotonic() < deadline, "the learner never took the run"
+            time.sleep(0.5)
+        failed = store.get_run(run_id=run.id)
+        assert failed.status == "failed" and "no-such-env-v0" in failed.status_reason  # the reason is kept
+        store.dispose()
+    finally:
+        os.killpg(process.pid, signal.SIGINT)  # what Ctrl-C in a terminal sends
+        code = process.wait(timeout=60)
+        log.close()
+    output = (tmp_path / "up.log").read_text()
+    assert code == 0, output
+    assert "web" in output and "learner" in output and "raq up: stopped" in output
