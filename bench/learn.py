@@ -1,0 +1,210 @@
+"""A whole learning run through the real store, the real server and `raq oracle` answering queries.
+
+    python bench/learn.py --task pusher --algorithm vice_raq --seed 0 --total-steps 100000
+
+Writes <out>/curve.csv and <out>/curve.png (eval success rate and queries against env steps) and prints
+a summary line: env steps to first reach 90% eval success, queries asked, wall time, updates/s.
+"""
+
+import argparse
+import csv
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from app.demo import add_simulated_goal_set  # noqa: E402
+from app.migrate import upgrade  # noqa: E402
+from app.store import Store  # noqa: E402
+from bench.plot import line_plot  # noqa: E402
+from learner.config import TrainConfig  # noqa: E402
+
+TASKS = {"pusher": "VisualPusher-v0", "door": "VisualDoor-v0", "picker": "VisualPicker-v0"}
+CURVE_METRICS = [
+    "eval/success_rate", "eval/return", "queries/asked", "queries/answered", "queries/yes",
+    "reward/acc_goal", "reward/acc_replay", "perf/updates_per_second", "perf/steps_per_second",
+]  # fmt: skip
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def parse_overrides(pairs: list[str]) -> dict[str, object]:
+    overrides: dict[str, object] = {}
+    for pair in pairs:
+        key, _, raw = pair.partition("=")
+        try:
+            overrides[key] = json.loads(raw)
+        except json.JSONDecodeError:
+            overrides[key] = raw
+    return overrides
+
+
+def wait_for_health(url: str, timeout: float = 60) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            urllib.request.urlopen(f"{url}/health", timeout=2).read()
+            return
+        except OSError:
+            time.sleep(0.5)
+    raise SystemExit(f"server at {url} did not answer /health")
+
+
+def curve_rows(store: Store, run_id: int) -> list[dict[str, float]]:
+    by_step: dict[int, dict[str, float]] = {}
+    for metric in store.metrics(run_id=run_id, names=CURVE_METRICS):
+        by_step.setdefault(metric.step, {"step": metric.step})[metric.name] = metric.value
+    rows, last = [], {}
+    for step in sorted(by_step):
+        last.update(by_step[step])
+        rows.append(dict(last))
+    return rows
+
+
+def first_step_reaching(rows: list[dict[str, float]], name: str, threshold: float) -> int | None:
+    return next((int(row["step"]) for row in rows if row.get(name, -1) >= threshold), None)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--task", choices=sorted(TASKS), default="pusher")
+    parser.add_argument("--algorithm", default="vice_raq")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--total-steps", type=int, default=100_000)
+    parser.add_argument("--query-every", type=int, default=5000)
+    parser.add_argument("--query-budget", type=int, default=20)
+    parser.add_argument("--goals", type=int, default=10, help="goal examples from `raq goals`")
+    parser.add_argument("--noise", type=float, default=0.0, help="oracle answer noise")
+    parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="other TrainConfig fields")
+    parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--max-minutes", type=float, default=180)
+    args = parser.parse_args()
+
+    name = f"{args.task}-{args.algorithm}-seed{args.seed}"
+    out = args.out or ROOT / "bench" / "out" / name
+    out.mkdir(parents=True, exist_ok=True)
+    data_dir = out / "data"
+    if data_dir.exists():
+        raise SystemExit(f"{data_dir} exists: remove it or choose another --out")
+    config = TrainConfig(
+        env_id=TASKS[args.task], algorithm=args.algorithm, seed=args.seed, total_steps=args.total_steps,
+        query_every=args.query_every, query_budget=args.query_budget, **parse_overrides(args.set),
+    )  # fmt: skip
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    env = {**os.environ, "RAQ_DATA_DIR": str(data_dir), "RAQ_PORT": str(port), "PYTHONUNBUFFERED": "1"}
+    env.pop("RAQ_DATABASE_URL", None)
+    env.pop("DATABASE_URL", None)
+    database_url = f"sqlite:///{(data_dir / 'raq.sqlite3').resolve()}"
+    upgrade(database_url)
+    store = Store(database_url)
+    goal_set_id = add_simulated_goal_set(store, task=args.task, name=f"{args.task} goals", count=args.goals)
+    run = store.create_run(
+        name=name, env_id=config.env_id, algorithm=config.algorithm, config=config.to_dict(), seed=config.seed,
+        goal_set_id=goal_set_id, total_steps=config.total_steps,
+    )  # fmt: skip
+
+    raq = [sys.executable, "-m", "app.cli"]
+    logs = {key: (out / f"{key}.log").open("w") for key in ("serve", "oracle", "learn")}
+    serve = subprocess.Popen(
+        raq + ["serve", "--port", str(port)], env=env, stdout=logs["serve"], stderr=subprocess.STDOUT
+    )
+    processes = [serve]
+    started = time.monotonic()
+    try:
+        wait_for_health(url)
+        oracle_args = [
+            "oracle",
+            "--url",
+            url,
+            "--run",
+            str(run.id),
+            "--noise",
+            str(args.noise),
+            "--seed",
+            str(args.seed),
+        ]
+        processes.append(subprocess.Popen(raq + oracle_args, env=env, stdout=logs["oracle"], stderr=subprocess.STDOUT))
+        learner = subprocess.Popen(raq + ["learn", "--once"], env=env, stdout=logs["learn"], stderr=subprocess.STDOUT)
+        processes.append(learner)
+        next_report = time.monotonic() + 60
+        while learner.poll() is None:
+            if time.monotonic() - started > args.max_minutes * 60:
+                print("time limit reached: stopping the run", flush=True)
+                store.request_stop(run_id=run.id)
+                learner.wait(timeout=300)
+                break
+            if time.monotonic() >= next_report:
+                rows = curve_rows(store, run.id)
+                last = rows[-1] if rows else {}
+                print(
+                    f"[{(time.monotonic() - started) / 60:5.1f} min] step {store.get_run(run_id=run.id).step:>7,}"
+                    f"  success {last.get('eval/success_rate', float('nan')):.2f}"
+                    f"  queries {last.get('queries/asked', 0):.0f} (yes {last.get('queries/yes', 0):.0f})"
+                    f"  updates/s {last.get('perf/updates_per_second', float('nan')):.1f}",
+                    flush=True,
+                )
+                next_report = time.monotonic() + 60
+            time.sleep(2)
+    finally:
+        for process in processes:
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+        for process in processes:
+            try:
+                process.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                process.kill()
+        for log in logs.values():
+            log.close()
+    wall_seconds = time.monotonic() - started
+
+    rows = curve_rows(store, run.id)
+    final = store.get_run(run_id=run.id)
+    with (out / "curve.csv").open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=["step", *CURVE_METRICS])
+        writer.writeheader()
+        writer.writerows(rows)
+    success = [(row["step"], row["eval/success_rate"]) for row in rows if "eval/success_rate" in row]
+    queries = [(row["step"], row.get("queries/asked", 0) / max(1, args.query_budget)) for row in rows]
+    line_plot(
+        out / "curve.png",
+        {"eval success rate": success, f"queries asked / {args.query_budget}": queries},
+        title=f"{name}: {final.status}",
+        y_range=(0.0, 1.0),
+    )
+    reached = first_step_reaching(rows, "eval/success_rate", 0.9)
+    counts = store.query_counts(run_id=run.id)
+    updates = [row["perf/updates_per_second"] for row in rows if "perf/updates_per_second" in row]
+    summary = {
+        "run": name,
+        "status": final.status,
+        "reason": final.status_reason,
+        "env_steps": final.step,
+        "steps_to_90pct_success": reached,
+        "final_success_rate": success[-1][1] if success else None,
+        "queries_asked": counts["asked"],
+        "queries_yes": counts["yes"],
+        "wall_minutes": round(wall_seconds / 60, 1),
+        "updates_per_second": round(sum(updates) / len(updates), 2) if updates else None,
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    print("SUMMARY " + json.dumps(summary), flush=True)
+    store.dispose()
+    return 0 if final.status == "finished" else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,57 @@
+"""A small line plot drawn with Pillow (no plotting library needed): curves against env steps."""
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from PIL import Image, ImageDraw
+
+COLOURS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b"]
+
+
+def line_plot(
+    path: Path,
+    series: dict[str, Sequence[tuple[float, float]]],
+    *,
+    title: str,
+    x_label: str = "env steps",
+    y_range: tuple[float, float] | None = None,
+    size: tuple[int, int] = (900, 500),
+) -> None:
+    """Each series is a list of (x, y). y_range None: fitted to the data (each series is drawn on it)."""
+    width, height = size
+    left, right, top, bottom = 70, 20, 40, 60
+    image = Image.new("RGB", size, "white")
+    draw = ImageDraw.Draw(image)
+    points = [point for values in series.values() for point in values]
+    x_max = max((x for x, _ in points), default=1.0) or 1.0
+    if y_range is None:
+        ys = [y for _, y in points] or [0.0, 1.0]
+        y_range = (min(0.0, min(ys)), max(ys) if max(ys) > min(0.0, min(ys)) else 1.0)
+    y_low, y_high = y_range
+
+    def to_pixel(x: float, y: float) -> tuple[float, float]:
+        px = left + (width - left - right) * x / x_max
+        py = height - bottom - (height - top - bottom) * (y - y_low) / ((y_high - y_low) or 1.0)
+        return px, py
+
+    draw.rectangle([left, top, width - right, height - bottom], outline="black")
+    for tick in range(6):
+        y = y_low + (y_high - y_low) * tick / 5
+        _, py = to_pixel(0, y)
+        draw.line([left - 5, py, left, py], fill="black")
+        draw.text((5, py - 6), f"{y:.3g}", fill="black")
+        x = x_max * tick / 5
+        px, _ = to_pixel(x, y_low)
+        draw.line([px, height - bottom, px, height - bottom + 5], fill="black")
+        draw.text((px - 15, height - bottom + 8), f"{x:,.0f}", fill="black")
+    draw.text((width // 2 - 40, height - 25), x_label, fill="black")
+    draw.text((left, 12), title, fill="black")
+    for index, (name, values) in enumerate(series.items()):
+        colour = COLOURS[index % len(COLOURS)]
+        pixels = [to_pixel(x, y) for x, y in values]
+        if len(pixels) > 1:
+            draw.line(pixels, fill=colour, width=2)
+        for px, py in pixels:
+            draw.ellipse([px - 2, py - 2, px + 2, py + 2], fill=colour)
+        draw.text((width - right - 220, top + 8 + 16 * index), f"— {name}", fill=colour)
+    image.save(path)
