@@ -1,6 +1,7 @@
 """The `raq` command: serve, learn, up, oracle, goals, migrate."""
 
 import argparse
+import logging
 import os
 import signal
 import subprocess
@@ -48,7 +49,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def cmd_learn(args: argparse.Namespace) -> int:
     settings = get_settings()
     _migrate(settings)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     from learner.worker import work
+
+    print(f"learner: taking queued runs from {settings.resolved_database_url}", flush=True)
 
     return work(settings, worker_name=args.name, once=args.once)
 

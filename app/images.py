@@ -45,9 +45,7 @@ def decode_upload(data: bytes, *, max_bytes: int, max_pixels: int) -> Image.Imag
     if not data:
         raise ImageRejected("the file is empty")
     if len(data) > max_bytes:
-        raise ImageRejected(
-            f"the file is {len(data):,} bytes; the limit is {max_bytes:,} bytes", status_code=413
-        )
+        raise ImageRejected(f"the file is {len(data):,} bytes; the limit is {max_bytes:,} bytes", status_code=413)
     # Pillow warns above MAX_IMAGE_PIXELS and refuses above twice that; we refuse above it (the check
     # on the header's size below comes first, this is the second line of defence).
     Image.MAX_IMAGE_PIXELS = max_pixels
@@ -113,9 +111,7 @@ def to_display_png(image: Image.Image, max_side: int = DISPLAY_MAX_SIDE) -> byte
     return _png_bytes(display)
 
 
-def prepare_upload(
-    data: bytes, *, filename: str, model_size: int, max_bytes: int, max_pixels: int
-) -> PreparedImage:
+def prepare_upload(data: bytes, *, filename: str, model_size: int, max_bytes: int, max_pixels: int) -> PreparedImage:
     """Check one upload and make its copies; ImageRejected's message names the file."""
     try:
         image = decode_upload(data, max_bytes=max_bytes, max_pixels=max_pixels)

@@ -6,7 +6,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from app.store import Event, GoalExample, GoalSet, Query, Rollout, Run, seconds_since
+from app.store import GoalExample, GoalSet, Query, Rollout, Run, seconds_since
+from app.store.models import Event
 
 
 class HealthOut(BaseModel):
@@ -259,6 +260,7 @@ class QueueItem(BaseModel):
 
     query: QueryOut | None
     pending: int = Field(description="Pending queries (of the run, or of all runs).")
+    pending_all_runs: int = Field(description="Pending queries of all runs.")
     run: RunOut | None
     goal_examples: list[GoalExampleOut]
 

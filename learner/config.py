@@ -98,6 +98,14 @@ class TrainConfig:
     """Environment steps between checkpoints (one is also written at a clean exit)."""
     display_size: int = 256
     """Side of the larger render stored with each query and rollout for a person to look at."""
+    rollout_size: int = 128
+    """Side of the frames of the evaluation rollout GIF."""
+    query_candidates: int = 32
+    """Best-scoring observations since the last query kept with their display render; the query is the best of them."""
+    log_every: int = 250
+    """Environment steps between training-metric records (answers are also read this often)."""
+    heartbeat_seconds: float = 5.0
+    """Seconds between heartbeats to the store (a stop request is noticed this quickly)."""
 
     def __post_init__(self) -> None:
         errors = self.validation_errors()
@@ -111,7 +119,7 @@ class TrainConfig:
         positive_ints = (
             "image_size", "total_steps", "episode_steps", "batch_size", "updates_per_step", "replay_capacity",
             "conv_filters", "hidden_dim", "classifier_batch_size", "epoch_steps", "query_every", "eval_every",
-            "checkpoint_every", "display_size",
+            "checkpoint_every", "display_size", "rollout_size", "query_candidates", "log_every",
         )  # fmt: skip
         for name in positive_ints:
             if getattr(self, name) < 1:
@@ -122,6 +130,8 @@ class TrainConfig:
         for name in ("actor_lr", "critic_lr", "alpha_lr", "classifier_lr", "initial_alpha"):
             if not getattr(self, name) > 0:
                 errors.append((name, "must be positive"))
+        if not self.heartbeat_seconds > 0:
+            errors.append(("heartbeat_seconds", "must be positive"))
         if not 0 < self.discount <= 1:
             errors.append(("discount", "must be in (0, 1]"))
         if not 0 < self.tau <= 1:

@@ -51,7 +51,7 @@ def test_raq_up_serves_health_runs_a_learner_and_stops_cleanly(tmp_path: Path) -
             assert time.monotonic() < deadline, "the learner never took the run"
             time.sleep(0.5)
         failed = store.get_run(run_id=run.id)
-        assert failed.status == "failed" and "no-such-env-v0" in failed.status_reason  # the reason is kept
+        assert failed.status == "failed" and "no-such-env" in failed.status_reason  # the reason is kept
         store.dispose()
     finally:
         os.killpg(process.pid, signal.SIGINT)  # what Ctrl-C in a terminal sends

@@ -155,6 +155,8 @@ def test_metrics_since_a_step_and_rollouts_keep_the_newest(store: Store) -> None
         store.record_metrics(run_id=run_id, step=step, values={"eval/success_rate": step / 4000, "critic/loss": 1.0})
     assert [m.step for m in store.metrics(run_id=run_id, since_step=1000, names=["eval/success_rate"])] == [2000, 3000]
     assert store.latest_metric(run_id=run_id, name="eval/success_rate") == 0.75
+    assert store.record_metrics(run_id=run_id, step=4000, values={"critic/loss": float("nan"), "alpha": 0.1}) == 1
+    assert store.latest_metric(run_id=run_id, name="critic/loss") == 1.0  # the NaN was left out, not stored
     for step in range(5):
         store.record_rollout(run_id=run_id, env_step=step, data=b"GIF%d" % step, frame_count=3, keep=2)
     latest = store.latest_rollout(run_id=run_id)

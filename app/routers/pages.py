@@ -1,5 +1,6 @@
 """HTML pages (Jinja2, no build step). They read through the store and write through the REST API."""
 
+import hmac
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -62,6 +63,7 @@ def _page(request: Request, template: str, settings: Any, store: Any, status_cod
         "authorised": is_authorised(request, settings),
         "pending_total": pending,
         "path": request.url.path,
+        "stale_after_seconds": settings.stale_heartbeat_seconds,
     }
     return templates.TemplateResponse(request, template, {**base, **context}, status_code=status_code)
 
@@ -179,7 +181,7 @@ def login(
     target = _local_path(next)
     if not settings.api_token:
         return RedirectResponse(target, status_code=303)
-    if token.strip() != settings.api_token:
+    if not hmac.compare_digest(token.strip().encode(), settings.api_token.encode()):
         return _page(
             request, "login.html", settings, store, status_code=401, title="Log in", next=target,
             error="That token is not right.",

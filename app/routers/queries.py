@@ -22,9 +22,7 @@ def list_queries(
     limit: Annotated[int, Query(ge=1, le=1000)] = 200,
 ) -> list[QueryOut]:
     """Pending queries come oldest first (the order to answer them); others newest first."""
-    rows = store.list_queries(
-        run_id=run_id, status=status, limit=limit, oldest_first=status == QueryStatus.PENDING
-    )
+    rows = store.list_queries(run_id=run_id, status=status, limit=limit, oldest_first=status == QueryStatus.PENDING)
     return [QueryOut.of(query) for query in rows]
 
 
@@ -34,9 +32,16 @@ def next_query(store: StoreDep, run_id: int | None = None) -> QueueItem:
     if run_id is not None:
         store.get_run(run_id=run_id)
     pending = store.pending_queries(run_id=run_id, limit=PENDING_COUNT_LIMIT)
+    pending_all_runs = len(pending) if run_id is None else len(store.pending_queries(limit=PENDING_COUNT_LIMIT))
     if not pending:
         run = store.get_run(run_id=run_id) if run_id is not None else None
-        return QueueItem(query=None, pending=0, run=run_out(store, run) if run else None, goal_examples=[])
+        return QueueItem(
+            query=None,
+            pending=0,
+            pending_all_runs=pending_all_runs,
+            run=run_out(store, run) if run else None,
+            goal_examples=[],
+        )
     query = pending[0]
     run = store.get_run(run_id=query.run_id)
     examples: list[GoalExampleOut] = []
@@ -45,7 +50,13 @@ def next_query(store: StoreDep, run_id: int | None = None) -> QueueItem:
             examples = [GoalExampleOut.of(e) for e in store.list_goal_examples(goal_set_id=run.goal_set_id)]
         except NotFound:
             examples = []
-    return QueueItem(query=QueryOut.of(query), pending=len(pending), run=run_out(store, run), goal_examples=examples)
+    return QueueItem(
+        query=QueryOut.of(query),
+        pending=len(pending),
+        pending_all_runs=pending_all_runs,
+        run=run_out(store, run),
+        goal_examples=examples,
+    )
 
 
 @router.get("/{query_id}", response_model=QueryOut)

@@ -4,6 +4,7 @@ Both processes open their own `Store` on the same database URL; they share nothi
 back detached (expire_on_commit=False); binary columns are deferred and read with the *_image methods.
 """
 
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -480,13 +481,17 @@ class Store(Database):
             ]
 
     # ---------------------------------------------------------------- metrics, events, rollouts
-    def record_metrics(self, *, run_id: int, step: int, values: dict[str, float]) -> None:
+    def record_metrics(self, *, run_id: int, step: int, values: dict[str, float]) -> int:
+        """Store one value per name at `step`. Non-finite values (a NaN loss) are left out, since SQL
+        has no NaN; returns how many were stored."""
         now = utcnow()
+        finite = {name: float(value) for name, value in values.items() if math.isfinite(float(value))}
         with self.writing() as session:
             session.add_all(
-                Metric(run_id=run_id, step=step, name=name, value=float(value), created_at=now)
-                for name, value in values.items()
+                Metric(run_id=run_id, step=step, name=name, value=value, created_at=now)
+                for name, value in finite.items()
             )
+        return len(finite)
 
     def metrics(self, *, run_id: int, since_step: int = -1, names: Iterable[str] | None = None) -> list[Metric]:
         statement = select(Metric).where(Metric.run_id == run_id, Metric.step > since_step)

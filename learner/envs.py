@@ -1,0 +1,158 @@
+"""Making any image env: a gymnasium id, or "module:EnvId" (the module is imported first, so it can register).
+
+The env's observation must be an RGB image (HWC or CHW; uint8, or float in [0, 1]), or a dict holding one
+under "image" or "pixels". Observations of another size are resized to image_size. info["success"] is used
+when the env reports it (evaluation success rate, sparse reward, ground truth on queries) and is optional.
+"""
+
+import importlib
+import io
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from PIL import Image
+
+SIM_ENV_IDS = ("VisualPusher-v0", "VisualDoor-v0", "VisualPicker-v0")
+
+
+def _import_for(env_id: str) -> str:
+    """Import what registers env_id; return the id to pass to gymnasium.make."""
+    if ":" in env_id:
+        module, name = env_id.split(":", 1)
+        importlib.import_module(module)
+        return name
+    if env_id not in gym.registry and env_id in SIM_ENV_IDS:
+        importlib.import_module("sim")
+    return env_id
+
+
+def make_env(env_id: str, *, image_size: int, display_size: int) -> gym.Env:
+    """The env with render_mode="rgb_array"; image_size / render_size are passed when the env takes them."""
+    name = _import_for(env_id)
+    attempts: list[dict[str, Any]] = [
+        {"render_mode": "rgb_array", "image_size": image_size, "render_size": display_size},
+        {"render_mode": "rgb_array", "image_size": image_size},
+        {"render_mode": "rgb_array"},
+        {},
+    ]
+    error: Exception | None = None
+    for kwargs in attempts:
+        try:
+            return gym.make(name, **kwargs)
+        except TypeError as exc:  # the env does not take one of these keyword arguments
+            error = exc
+    raise ValueError(f"cannot make env {env_id!r}: {error}")
+
+
+def check_action_space(env: gym.Env) -> gym.spaces.Box:
+    space = env.action_space
+    if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1:
+        raise ValueError(f"the env's action space must be a 1-D Box, not {space}")
+    if not (np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))):
+        raise ValueError("the env's action space must be bounded")
+    return space
+
+
+def scale_action(action: np.ndarray, space: gym.spaces.Box) -> np.ndarray:
+    """[-1, 1] (the tanh policy's range) -> [low, high]."""
+    low, high = space.low, space.high
+    return (low + (action + 1.0) * 0.5 * (high - low)).astype(space.dtype)
+
+
+def as_rgb(image: Any) -> np.ndarray:
+    """Any RGB image the env may give -> uint8 HWC."""
+    if isinstance(image, dict):
+        for key in ("image", "pixels", "rgb"):
+            if key in image:
+                return as_rgb(image[key])
+        raise ValueError(f"dict observation without an 'image' or 'pixels' key: {sorted(image)}")
+    array = np.asarray(image)
+    if array.ndim == 3 and array.shape[0] in (3, 4) and array.shape[-1] not in (3, 4):
+        array = array.transpose(1, 2, 0)
+    if array.ndim != 3 or array.shape[-1] not in (3, 4):
+        raise ValueError(f"observation must be an RGB image (H, W, 3), not shape {array.shape}")
+    array = array[..., :3]
+    if array.dtype != np.uint8:
+        scale = 255.0 if array.max(initial=0) <= 1.0 else 1.0
+        array = np.clip(array.astype(np.float32) * scale, 0, 255).round().astype(np.uint8)
+    return np.ascontiguousarray(array)
+
+
+def resize(image: np.ndarray, size: int) -> np.ndarray:
+    """uint8 HWC -> (size, size, 3); unchanged when already that size."""
+    if image.shape[0] == size and image.shape[1] == size:
+        return image
+    return np.array(Image.fromarray(image).resize((size, size), Image.Resampling.BILINEAR, reducing_gap=None))
+
+
+def model_image(observation: Any, image_size: int) -> np.ndarray:
+    """The env's observation as the networks see it: uint8 (image_size, image_size, 3)."""
+    return resize(as_rgb(observation), image_size)
+
+
+def display_image(env: gym.Env, size: int, fallback: np.ndarray) -> np.ndarray:
+    """env.render() of the current state, longer side `size`; the upscaled observation if it cannot render."""
+    try:
+        frame = env.render()
+    except Exception:  # an env without rgb_array rendering
+        frame = None
+    if frame is None:
+        return resize(fallback, size)
+    frame = as_rgb(frame)
+    height, width = frame.shape[:2]
+    if max(height, width) != size:
+        scale = size / max(height, width)
+        new = (max(1, round(width * scale)), max(1, round(height * scale)))
+        frame = np.array(Image.fromarray(frame).resize(new, Image.Resampling.BILINEAR))
+    return frame
+
+
+def success_of(info: dict[str, Any]) -> float | None:
+    """The env's ground-truth success flag as 0.0 / 1.0, or None when it reports none."""
+    value = info.get("success") if isinstance(info, dict) else None
+    if value is None:
+        return None
+    return float(bool(np.asarray(value).item()))
+
+
+def jsonable(value: Any) -> Any:
+    """info values as JSON (numpy scalars and arrays to Python); what cannot be is dropped."""
+    if isinstance(value, dict):
+        out = {str(k): jsonable(v) for k, v in value.items()}
+        return {k: v for k, v in out.items() if v is not _DROP}
+    if isinstance(value, (list, tuple)):
+        return [v for v in (jsonable(v) for v in value) if v is not _DROP]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist()) if value.size <= 64 else _DROP
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return _DROP
+
+
+_DROP = object()
+
+
+def encode_png(image: np.ndarray) -> bytes:
+    buffer = io.BytesIO()
+    Image.fromarray(image).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def decode_image(data: bytes, image_size: int) -> np.ndarray:
+    """PNG/JPEG bytes -> uint8 (image_size, image_size, 3)."""
+    with Image.open(io.BytesIO(data)) as image:
+        rgb = np.array(image.convert("RGB"))
+    return resize(rgb, image_size)
+
+
+def encode_gif(frames: list[np.ndarray], frame_ms: int = 80) -> bytes:
+    images = [Image.fromarray(frame) for frame in frames]
+    buffer = io.BytesIO()
+    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:], duration=frame_ms, loop=0)
+    return buffer.getvalue()

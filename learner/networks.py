@@ -1,0 +1,121 @@
+"""The paper's networks (Fig. 2): conv encoder, tanh-Gaussian actor, twin Q critic and reward classifier f_psi.
+
+Images enter as uint8 NHWC (how envs and the replay buffer hold them) and are turned into float NCHW tensors
+with channels_last strides once per batch (`to_float`), which is the layout the CPU conv kernels prefer.
+"""
+
+import math
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
+"""Clamp of the actor's log standard deviation (softlearning's bounds)."""
+
+_HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
+_LOG_2 = math.log(2.0)
+
+
+def to_float(images: np.ndarray | torch.Tensor, device: torch.device | str = "cpu") -> torch.Tensor:
+    """uint8 (B, H, W, 3) -> float32 (B, 3, H, W) in [0, 1], channels_last in memory (a permute, no copy)."""
+    tensor = torch.from_numpy(np.ascontiguousarray(images)) if isinstance(images, np.ndarray) else images
+    tensor = tensor.to(device, non_blocking=True).permute(0, 3, 1, 2)
+    return tensor.to(torch.float32).mul_(1.0 / 255.0)
+
+
+def mlp(in_dim: int, hidden_dim: int, out_dim: int) -> nn.Sequential:
+    """Two ReLU hidden layers of hidden_dim, then a linear head."""
+    return nn.Sequential(
+        nn.Linear(in_dim, hidden_dim), nn.ReLU(inplace=True),
+        nn.Linear(hidden_dim, hidden_dim), nn.ReLU(inplace=True),
+        nn.Linear(hidden_dim, out_dim),
+    )  # fmt: skip
+
+
+class ConvEncoder(nn.Module):
+    """Two 5x5 'same' convs with `filters` filters, each followed by a 2x2 max-pool and a ReLU; flatten.
+
+    The paper applies ReLU before the pool; max-pool and ReLU are both monotone, so they commute and
+    relu(pool(x)) == pool(relu(x)) exactly, with the ReLU on a quarter of the values.
+    """
+
+    def __init__(self, image_size: int, filters: int) -> None:
+        super().__init__()
+        self.conv1 = nn.Conv2d(3, filters, 5, padding=2)
+        self.conv2 = nn.Conv2d(filters, filters, 5, padding=2)
+        side = image_size // 2 // 2
+        self.output_dim = filters * side * side
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        x = F.relu(F.max_pool2d(self.conv1(images), 2))
+        x = F.relu(F.max_pool2d(self.conv2(x), 2))
+        return x.flatten(1)
+
+
+class Actor(nn.Module):
+    """tanh-squashed Gaussian policy head; with its own encoder it takes images, without it features."""
+
+    def __init__(self, feature_dim: int, action_dim: int, hidden_dim: int, encoder: ConvEncoder | None) -> None:
+        super().__init__()
+        self.encoder = encoder
+        self.trunk = mlp(feature_dim, hidden_dim, 2 * action_dim)
+
+    def forward(self, inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        features = self.encoder(inputs) if self.encoder is not None else inputs
+        mean, log_std = self.trunk(features).float().chunk(2, dim=-1)
+        return mean, log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
+
+
+class Critic(nn.Module):
+    """Twin Q-functions; with their own encoders (one each) they take images, without them features."""
+
+    def __init__(
+        self, feature_dim: int, action_dim: int, hidden_dim: int, encoders: tuple[ConvEncoder, ConvEncoder] | None
+    ) -> None:
+        super().__init__()
+        self.encoders = nn.ModuleList(encoders) if encoders is not None else None
+        self.q1 = mlp(feature_dim + action_dim, hidden_dim, 1)
+        self.q2 = mlp(feature_dim + action_dim, hidden_dim, 1)
+
+    def forward(self, inputs: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        if self.encoders is None:
+            h1 = h2 = inputs
+        else:
+            h1, h2 = self.encoders[0](inputs), self.encoders[1](inputs)
+        action = action.to(h1.dtype)
+        q1 = self.q1(torch.cat([h1, action], dim=-1)).float().squeeze(-1)
+        q2 = self.q2(torch.cat([h2, action], dim=-1)).float().squeeze(-1)
+        return q1, q2
+
+
+class RewardClassifier(nn.Module):
+    """f_psi(s): the paper's conv net with a single logit (always its own encoder)."""
+
+    def __init__(self, image_size: int, filters: int, hidden_dim: int) -> None:
+        super().__init__()
+        self.encoder = ConvEncoder(image_size, filters)
+        self.head = mlp(self.encoder.output_dim, hidden_dim, 1)
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        return self.head(self.encoder(images)).float().squeeze(-1)
+
+
+def squashed_gaussian_sample(
+    mean: torch.Tensor, log_std: torch.Tensor, deterministic: bool = False
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """a = tanh(u), u ~ N(mean, std) (reparameterised); returns (a, log pi(a|s)) with the tanh correction.
+
+    log pi(a|s) = log N(u; mean, std) - sum log(1 - tanh(u)^2), and log(1 - tanh(u)^2) is computed as
+    2 (log 2 - u - softplus(-2u)) for numerical stability (SAC paper, appendix C).
+    """
+    if deterministic:
+        u = mean
+        noise = torch.zeros_like(mean)
+    else:
+        noise = torch.randn_like(mean)
+        u = mean + log_std.exp() * noise
+    gaussian = (-0.5 * noise.pow(2) - log_std - _HALF_LOG_2PI).sum(-1)
+    correction = (2.0 * (_LOG_2 - u - F.softplus(-2.0 * u))).sum(-1)
+    return torch.tanh(u), gaussian - correction

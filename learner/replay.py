@@ -1,0 +1,130 @@
+"""Replay buffer of image transitions that stores each frame once, plus DrQ's random shift done as a gather.
+
+A transition (s, a, s', d, success(s')) points at two frame slots; s' of one step is s of the next, so a frame
+is stored once (about 1 + 1/T frames per transition for episodes of length T). Each transition adds at most
+two frames (its s' and, after a reset, its s), so a frame ring twice the transition capacity never overwrites
+a frame a live transition uses. np.zeros is lazily committed, so the unused part costs no memory.
+"""
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+
+@dataclass
+class Batch:
+    """uint8 NHWC images (augmented when asked) and the rest as float32 arrays."""
+
+    indices: np.ndarray
+    obs: np.ndarray
+    action: np.ndarray
+    next_obs: np.ndarray
+    not_done: np.ndarray
+
+
+def random_shift(images: np.ndarray, pad: int, rng: np.random.Generator) -> np.ndarray:
+    """DrQ random shift: replicate-pad by `pad` and crop back at a random offset, per image, on uint8 NHWC."""
+    if pad <= 0:
+        return images
+    count, height, width, _ = images.shape
+    padded = np.pad(images, ((0, 0), (pad, pad), (pad, pad), (0, 0)), mode="edge")
+    offsets = rng.integers(0, 2 * pad + 1, size=(count, 2))
+    out = np.empty_like(images)
+    for i, (dy, dx) in enumerate(offsets.tolist()):
+        out[i] = padded[i, dy : dy + height, dx : dx + width]
+    return out
+
+
+def shift_pad(image_size: int) -> int:
+    """DrQ shifts 84 px images by up to 4 px; the same fraction of the image, at least 1 px."""
+    return max(1, round(4 * image_size / 84))
+
+
+class ReplayBuffer:
+    """Transitions in a ring of `capacity`; frames in a ring of 2 * capacity + 2."""
+
+    def __init__(self, capacity: int, image_shape: tuple[int, int, int], action_dim: int) -> None:
+        self.capacity = capacity
+        self.frame_capacity = 2 * capacity + 2
+        self.frames = np.zeros((self.frame_capacity, *image_shape), dtype=np.uint8)
+        self.obs_slot = np.zeros(capacity, dtype=np.int64)
+        self.next_slot = np.zeros(capacity, dtype=np.int64)
+        self.actions = np.zeros((capacity, action_dim), dtype=np.float32)
+        self.not_done = np.zeros(capacity, dtype=np.float32)
+        self.success = np.full(capacity, np.nan, dtype=np.float32)
+        # f_psi(s') per transition and the classifier version that computed it (-1: none)
+        self.reward_cache = np.zeros(capacity, dtype=np.float32)
+        self.reward_version = np.full(capacity, -1, dtype=np.int64)
+        self.frames_added = 0
+        self.added = 0
+
+    def __len__(self) -> int:
+        return min(self.added, self.capacity)
+
+    def add_frame(self, image: np.ndarray) -> int:
+        """Store one uint8 HWC observation; returns its slot."""
+        slot = self.frames_added % self.frame_capacity
+        self.frames[slot] = image
+        self.frames_added += 1
+        return slot
+
+    def add(self, obs_slot: int, action: np.ndarray, next_slot: int, terminated: bool, success: float | None) -> int:
+        """Store a transition between two stored frames; returns its index."""
+        index = self.added % self.capacity
+        self.obs_slot[index] = obs_slot
+        self.next_slot[index] = next_slot
+        self.actions[index] = action
+        self.not_done[index] = 0.0 if terminated else 1.0
+        self.success[index] = np.nan if success is None else success
+        self.reward_version[index] = -1
+        self.added += 1
+        return index
+
+    def sample(self, rng: np.random.Generator, batch_size: int, pad: int = 0) -> Batch:
+        """Uniform with replacement; s and s' shifted independently when pad > 0 (DrQ)."""
+        indices = rng.integers(0, len(self), size=batch_size)
+        obs = self.frames[self.obs_slot[indices]]
+        next_obs = self.frames[self.next_slot[indices]]
+        if pad > 0:
+            obs, next_obs = random_shift(obs, pad, rng), random_shift(next_obs, pad, rng)
+        return Batch(indices, obs, self.actions[indices], next_obs, self.not_done[indices])
+
+    def sample_next_frames(self, rng: np.random.Generator, count: int) -> np.ndarray:
+        """Uniform replay observations (the s' of uniform transitions): VICE's negatives."""
+        indices = rng.integers(0, len(self), size=count)
+        return self.frames[self.next_slot[indices]]
+
+    def frames_since(self, first_frame: int) -> np.ndarray:
+        """All frames added since the absolute frame number `first_frame` (still in the ring)."""
+        first = max(first_frame, self.frames_added - self.frame_capacity)
+        slots = np.arange(first, self.frames_added) % self.frame_capacity
+        return self.frames[slots]
+
+    # ------------------------------------------------------------------ state
+    def state_dict(self) -> dict[str, Any]:
+        used = len(self)
+        frames = min(self.frames_added, self.frame_capacity)
+        return {
+            "capacity": self.capacity,
+            "frames": torch.from_numpy(self.frames[:frames]),
+            "obs_slot": torch.from_numpy(self.obs_slot[:used]),
+            "next_slot": torch.from_numpy(self.next_slot[:used]),
+            "actions": torch.from_numpy(self.actions[:used]),
+            "not_done": torch.from_numpy(self.not_done[:used]),
+            "success": torch.from_numpy(self.success[:used]),
+            "frames_added": self.frames_added,
+            "added": self.added,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state["capacity"] != self.capacity:
+            raise ValueError(f"checkpoint replay capacity {state['capacity']} != {self.capacity}")
+        frames = state["frames"].numpy()
+        self.frames[: len(frames)] = frames
+        used = len(state["obs_slot"])
+        for name in ("obs_slot", "next_slot", "actions", "not_done", "success"):
+            getattr(self, name)[:used] = state[name].numpy()
+        self.frames_added, self.added = int(state["frames_added"]), int(state["added"])
+        self.reward_version[:] = -1

@@ -1,0 +1,170 @@
+"""The reward classifier f_psi and its training for each method (original-implementation.md, the per-method table).
+
+vice / vice_raq: AIRL discriminator D(s, a) = sigmoid(f_psi(s) - log pi(a|s)) (the paper's Eq. for D), a fresh
+    a ~ pi(.|s) for every positive (Alg. 2 line 10) and every negative; negatives are uniform replay samples.
+raq / naive_classifier: plain sigmoid cross-entropy on f_psi(s).
+Mixup (Eq. mixup): lambda ~ Beta(alpha, alpha) per sample, each sample mixed with a random permutation of the
+combined batch, images and labels alike.
+The SAC reward is the logit f_psi(s') itself (no log pi, no normalisation), always computed in fp32.
+"""
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from learner.config import TrainConfig
+from learner.networks import RewardClassifier, to_float
+from learner.replay import ReplayBuffer
+
+Policy = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
+"""float images -> (a ~ pi(.|s), log pi(a|s)), without gradients."""
+
+CLASSIFIER_ALGORITHMS = ("vice_raq", "vice", "raq", "naive_classifier")
+AIRL_ALGORITHMS = ("vice_raq", "vice")
+
+
+def mixup(
+    images: torch.Tensor, labels: torch.Tensor, alpha: float, rng: np.random.Generator
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """x~ = lam x_i + (1 - lam) x_perm(i), y~ likewise, lam ~ Beta(alpha, alpha) per sample."""
+    if alpha <= 0:
+        return images, labels
+    count = images.shape[0]
+    lam = torch.from_numpy(rng.beta(alpha, alpha, size=count).astype(np.float32)).to(images.device)
+    perm = torch.from_numpy(rng.permutation(count)).to(images.device)
+    mixed_images = torch.lerp(images[perm], images, lam.view(-1, 1, 1, 1))
+    mixed_labels = torch.lerp(labels[perm], labels, lam)
+    return mixed_images, mixed_labels
+
+
+class RewardModel:
+    """f_psi with its optimizer, its positive and negative example sets and a version counter.
+
+    The version increases with every gradient step, so a reward cached with the version that computed it is
+    exact until the next step (the classifier only changes at epoch boundaries).
+    """
+
+    def __init__(self, config: TrainConfig, rng: np.random.Generator) -> None:
+        self.config = config
+        self.rng = rng
+        self.device = torch.device(config.device)
+        self.net = RewardClassifier(config.image_size, config.conv_filters, config.hidden_dim)
+        self.net.to(self.device, memory_format=torch.channels_last)
+        self.opt = torch.optim.Adam(self.net.parameters(), lr=config.classifier_lr)
+        self.airl = config.algorithm in AIRL_ALGORITHMS
+        shape = (0, config.image_size, config.image_size, 3)
+        self.goals = np.zeros(shape, dtype=np.uint8)
+        self.answered_positives = np.zeros(shape, dtype=np.uint8)
+        self.initial_negatives = np.zeros(shape, dtype=np.uint8)
+        self.answered_negatives = np.zeros(shape, dtype=np.uint8)
+        self.version = 0
+
+    # ------------------------------------------------------------------ example sets
+    @property
+    def positives(self) -> np.ndarray:
+        return np.concatenate([self.goals, self.answered_positives])
+
+    @property
+    def negatives(self) -> np.ndarray:
+        return np.concatenate([self.initial_negatives, self.answered_negatives])
+
+    def add_positive(self, image: np.ndarray) -> None:
+        self.answered_positives = np.concatenate([self.answered_positives, image[None]])
+
+    def add_negative(self, image: np.ndarray) -> None:
+        self.answered_negatives = np.concatenate([self.answered_negatives, image[None]])
+
+    # ------------------------------------------------------------------ inference
+    @torch.no_grad()
+    def logits(self, images: np.ndarray, chunk: int = 1024) -> np.ndarray:
+        """f_psi for uint8 NHWC images, fp32, in chunks."""
+        out = [self.net(to_float(images[i : i + chunk], self.device)) for i in range(0, len(images), chunk)]
+        return torch.cat(out).cpu().numpy() if out else np.zeros(0, dtype=np.float32)
+
+    def rewards(self, replay: ReplayBuffer, indices: np.ndarray) -> np.ndarray:
+        """r = f_psi(s') for replay transitions, with the current classifier (cached per version, exact)."""
+        stale = indices[replay.reward_version[indices] != self.version]
+        if len(stale):
+            stale = np.unique(stale)
+            replay.reward_cache[stale] = self.logits(replay.frames[replay.next_slot[stale]])
+            replay.reward_version[stale] = self.version
+        return replay.reward_cache[indices]
+
+    # ------------------------------------------------------------------ training
+    def sample_positives(self, count: int) -> np.ndarray:
+        positives = self.positives
+        return positives[self.rng.integers(0, len(positives), size=count)]
+
+    def sample_negatives(self, count: int) -> np.ndarray:
+        negatives = self.negatives
+        return negatives[self.rng.integers(0, len(negatives), size=count)]
+
+    def discriminator_logits(
+        self, images: torch.Tensor, policy: Policy | None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """(logit of D, f_psi, log pi or None). AIRL form: logit D(s, a) = f_psi(s) - log pi(a|s), a ~ pi(.|s)."""
+        f = self.net(images)
+        if not self.airl or policy is None:
+            return f, f, None
+        _, log_pi = policy(images)  # a fresh action for every sample; pi is not trained by this loss
+        log_pi = log_pi.detach().float()
+        return f - log_pi, f, log_pi
+
+    def update_classifier(
+        self, positives: np.ndarray, negatives: np.ndarray, policy: Policy | None = None
+    ) -> dict[str, float]:
+        """One Adam step of the method's loss on uint8 NHWC positives and negatives; returns metrics.
+
+        Mixup with the AIRL form: the discriminator is a function of (s, a), so the mixed sample must be one
+        (s~, a~) pair; we sample a~ ~ pi(.|s~) for the mixed image and use f_psi(s~) - log pi(a~|s~) as its
+        logit, against the mixed label. (Mixing the log pi terms of the two sources instead would not be the
+        discriminator of Eq. D at any input.) Without mixup this is exactly Alg. 2 lines 9-12.
+        """
+        images = to_float(np.concatenate([positives, negatives]), self.device)
+        labels = torch.cat([torch.ones(len(positives)), torch.zeros(len(negatives))]).to(self.device)
+        mixed_images, mixed_labels = mixup(images, labels, self.config.mixup_alpha, self.rng)
+        logits, _, _ = self.discriminator_logits(mixed_images, policy)
+        loss = F.binary_cross_entropy_with_logits(logits, mixed_labels)
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        self.opt.step()
+        self.version += 1
+        metrics = {"reward/loss": loss.item()}
+        metrics.update(self._accuracy(images, len(positives), policy))
+        return metrics
+
+    @torch.no_grad()
+    def _accuracy(self, images: torch.Tensor, n_positive: int, policy: Policy | None) -> dict[str, float]:
+        """The discriminator's accuracy on the unmixed batch, and mean f_psi per class."""
+        logits, f, log_pi = self.discriminator_logits(images, policy)
+        metrics = {
+            "reward/acc_goal": (logits[:n_positive] > 0).float().mean().item(),
+            "reward/acc_replay": (logits[n_positive:] < 0).float().mean().item(),
+            "reward/mean_logit_goal": f[:n_positive].mean().item(),
+            "reward/mean_logit_replay": f[n_positive:].mean().item(),
+        }
+        if log_pi is not None:
+            metrics["reward/mean_log_pi"] = log_pi.mean().item()
+        return metrics
+
+    # ------------------------------------------------------------------ state
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "net": self.net.state_dict(),
+            "opt": self.opt.state_dict(),
+            "version": self.version,
+            "goals": torch.from_numpy(self.goals.copy()),
+            "answered_positives": torch.from_numpy(self.answered_positives.copy()),
+            "initial_negatives": torch.from_numpy(self.initial_negatives.copy()),
+            "answered_negatives": torch.from_numpy(self.answered_negatives.copy()),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.net.load_state_dict(state["net"])
+        self.opt.load_state_dict(state["opt"])
+        self.version = int(state["version"]) + 1  # anything cached before the load is stale
+        for name in ("goals", "answered_positives", "initial_negatives", "answered_negatives"):
+            setattr(self, name, state[name].numpy())

@@ -1,0 +1,174 @@
+"""Soft actor-critic from pixels (Haarnoja et al. 2018), with the paper's or a DrQ-style shared encoder.
+
+shared_encoder=False (TrainConfig.paper()): the actor and each Q-function have their own conv net, the target
+Q-functions are full copies (conv nets included), as in the paper's softlearning code.
+shared_encoder=True: one conv net, trained by the critic loss only; the actor sees detached features, and the
+target Q heads read the online encoder's features of s' (DrQ-v2's layout), so the encoder runs once on s and
+once on s' per update.
+"""
+
+import copy
+import math
+from contextlib import AbstractContextManager
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from learner.config import TrainConfig
+from learner.networks import Actor, ConvEncoder, Critic, squashed_gaussian_sample, to_float
+
+
+class SACAgent:
+    """Actor, twin critic, target critic, temperature, and their Adam optimizers."""
+
+    def __init__(self, config: TrainConfig, action_dim: int) -> None:
+        self.config = config
+        self.device = torch.device(config.device)
+        self.action_dim = action_dim
+        size, filters, hidden = config.image_size, config.conv_filters, config.hidden_dim
+        feature_dim = ConvEncoder(size, filters).output_dim
+        if config.shared_encoder:
+            self.encoder: ConvEncoder | None = ConvEncoder(size, filters)
+            self.actor = Actor(feature_dim, action_dim, hidden, encoder=None)
+            self.critic = Critic(feature_dim, action_dim, hidden, encoders=None)
+        else:
+            self.encoder = None
+            self.actor = Actor(feature_dim, action_dim, hidden, encoder=ConvEncoder(size, filters))
+            encoders = (ConvEncoder(size, filters), ConvEncoder(size, filters))
+            self.critic = Critic(feature_dim, action_dim, hidden, encoders=encoders)
+        for module in self.modules().values():
+            module.to(self.device, memory_format=torch.channels_last)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        self.log_alpha = torch.tensor(math.log(config.initial_alpha), device=self.device, requires_grad=True)
+        self.target_entropy = float(config.target_entropy if config.target_entropy is not None else -action_dim)
+        fused = self.device.type in ("cpu", "cuda")
+        critic_params = list(self.critic.parameters())
+        if self.encoder is not None:
+            critic_params += list(self.encoder.parameters())
+        self.critic_opt = torch.optim.Adam(critic_params, lr=config.critic_lr, fused=fused)
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=fused)
+        self.alpha_opt = torch.optim.Adam([self.log_alpha], lr=config.alpha_lr)
+
+    # ------------------------------------------------------------------ helpers
+    def modules(self) -> dict[str, torch.nn.Module]:
+        modules: dict[str, torch.nn.Module] = {"actor": self.actor, "critic": self.critic}
+        if self.encoder is not None:
+            modules["encoder"] = self.encoder
+        if hasattr(self, "critic_target"):
+            modules["critic_target"] = self.critic_target
+        return modules
+
+    def autocast(self) -> AbstractContextManager[Any]:
+        enabled = self.config.precision == "bf16"
+        return torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=enabled)
+
+    @property
+    def alpha(self) -> torch.Tensor:
+        return self.log_alpha.detach().exp()
+
+    def _features(self, images: torch.Tensor) -> torch.Tensor:
+        """What the actor and critic heads take: shared-encoder features, or the images themselves."""
+        return self.encoder(images) if self.encoder is not None else images
+
+    def policy(self, images: torch.Tensor, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """(a, log pi(a|s)) for float images, no gradients (acting, evaluation, VICE's action sampling)."""
+        with torch.no_grad(), self.autocast():
+            mean, log_std = self.actor(self._features(images))
+        return squashed_gaussian_sample(mean, log_std, deterministic)
+
+    def act(self, observation: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        """One uint8 HWC observation -> an action in [-1, 1]^dim(A)."""
+        action, _ = self.policy(to_float(observation[None], self.device), deterministic)
+        return action[0].cpu().numpy()
+
+    # ------------------------------------------------------------------ updates
+    def update(
+        self, obs: torch.Tensor, action: torch.Tensor, reward: torch.Tensor, next_obs: torch.Tensor,
+        not_done: torch.Tensor,
+    ) -> dict[str, float]:  # fmt: skip
+        """One SAC gradient step on float image batches (already augmented); returns metrics."""
+        metrics, actor_inputs = self.update_critic(obs, action, reward, next_obs, not_done)
+        metrics.update(self.update_actor_and_alpha(actor_inputs))
+        self.update_target()
+        return metrics
+
+    def update_critic(
+        self, obs: torch.Tensor, action: torch.Tensor, reward: torch.Tensor, next_obs: torch.Tensor,
+        not_done: torch.Tensor,
+    ) -> tuple[dict[str, float], torch.Tensor]:  # fmt: skip
+        """Soft Bellman residual on both Q's; returns metrics and the actor's inputs (detached features or images)."""
+        with torch.no_grad(), self.autocast():
+            next_inputs = self._features(next_obs)
+            mean, log_std = self.actor(next_inputs)
+            next_action, next_log_pi = squashed_gaussian_sample(mean, log_std)
+            target_q1, target_q2 = self.critic_target(next_inputs, next_action)
+        # y = r + gamma (1 - d) (min_j Q'_j(s', a') - alpha log pi(a'|s')),  a' ~ pi(.|s')
+        soft_value = torch.min(target_q1, target_q2) - self.alpha * next_log_pi
+        target = reward + self.config.discount * not_done * soft_value
+        with self.autocast():
+            inputs = self._features(obs)
+            q1, q2 = self.critic(inputs, action)
+        critic_loss = 0.5 * (F.mse_loss(q1, target) + F.mse_loss(q2, target))
+        self.critic_opt.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        self.critic_opt.step()
+        metrics = {
+            "critic/loss": critic_loss.item(),
+            "critic/q_mean": q1.detach().mean().item(),
+            "critic/target_mean": target.mean().item(),
+        }
+        actor_inputs = inputs.detach() if self.encoder is not None else obs
+        return metrics, actor_inputs
+
+    def update_actor_and_alpha(self, inputs: torch.Tensor) -> dict[str, float]:
+        """Reparameterised policy step on alpha log pi(a|s) - min_j Q_j(s, a), then the temperature step."""
+        self.critic.requires_grad_(False)  # the actor loss must not leave gradients on the critic
+        try:
+            with self.autocast():
+                mean, log_std = self.actor(inputs)
+                action, log_pi = squashed_gaussian_sample(mean, log_std)
+                q1, q2 = self.critic(inputs, action)
+            actor_loss = (self.alpha * log_pi - torch.min(q1, q2)).mean()
+            self.actor_opt.zero_grad(set_to_none=True)
+            actor_loss.backward()
+            self.actor_opt.step()
+        finally:
+            self.critic.requires_grad_(True)
+        # J(alpha) = E[-alpha (log pi(a|s) + target entropy)]  (SAC, Haarnoja et al. 2018b, Eq. 18)
+        alpha_loss = -(self.log_alpha * (log_pi.detach() + self.target_entropy)).mean()
+        self.alpha_opt.zero_grad(set_to_none=True)
+        alpha_loss.backward()
+        self.alpha_opt.step()
+        return {
+            "actor/loss": actor_loss.item(),
+            "actor/entropy": -log_pi.detach().mean().item(),
+            "alpha/loss": alpha_loss.item(),
+            "alpha/value": self.alpha.item(),
+        }
+
+    @torch.no_grad()
+    def update_target(self) -> None:
+        """Polyak averaging of the target critic, every step: theta' <- tau theta + (1 - tau) theta'."""
+        online = list(self.critic.parameters())
+        target = list(self.critic_target.parameters())
+        torch._foreach_lerp_(target, online, self.config.tau)
+
+    # ------------------------------------------------------------------ state
+    def state_dict(self) -> dict[str, Any]:
+        state: dict[str, Any] = {name: module.state_dict() for name, module in self.modules().items()}
+        state["log_alpha"] = self.log_alpha.detach().clone()
+        state["critic_opt"] = self.critic_opt.state_dict()
+        state["actor_opt"] = self.actor_opt.state_dict()
+        state["alpha_opt"] = self.alpha_opt.state_dict()
+        return state
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        for name, module in self.modules().items():
+            module.load_state_dict(state[name])
+        with torch.no_grad():
+            self.log_alpha.copy_(state["log_alpha"])
+        self.critic_opt.load_state_dict(state["critic_opt"])
+        self.actor_opt.load_state_dict(state["actor_opt"])
+        self.alpha_opt.load_state_dict(state["alpha_opt"])

@@ -1,0 +1,60 @@
+"""A tiny pure-numpy image env for tests and demos: move a red dot onto a green target.
+
+`import learner.testing_envs` registers "DotReach-v0"; make it as "learner.testing_envs:DotReach-v0".
+The observation is an RGB image (obs_size px; 24 by default); render() draws the same state at render_size.
+info["success"] is True when the dot is within `radius` of the target (unless report_success=False).
+"""
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+TARGET = np.array([0.5, 0.5], dtype=np.float32)
+
+
+class DotReach(gym.Env[np.ndarray, np.ndarray]):
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self, obs_size: int = 24, render_size: int = 64, render_mode: str | None = None, radius: float = 0.3,
+        report_success: bool = True,
+    ) -> None:  # fmt: skip
+        self.obs_size, self.render_size, self.render_mode = obs_size, render_size, render_mode
+        self.radius, self.report_success = radius, report_success
+        self.observation_space = gym.spaces.Box(0, 255, (obs_size, obs_size, 3), dtype=np.uint8)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
+        self.position = np.zeros(2, dtype=np.float32)
+
+    def _draw(self, size: int) -> np.ndarray:
+        grid = (np.arange(size, dtype=np.float32) + 0.5) / size * 2.0 - 1.0
+        xs, ys = np.meshgrid(grid, grid)
+        image = np.full((size, size, 3), 30, dtype=np.uint8)
+        image[(xs - TARGET[0]) ** 2 + (ys - TARGET[1]) ** 2 < 0.25**2] = (40, 200, 60)
+        image[(xs - self.position[0]) ** 2 + (ys - self.position[1]) ** 2 < 0.18**2] = (230, 40, 40)
+        return image
+
+    def _info(self) -> dict[str, Any]:
+        distance = float(np.linalg.norm(self.position - TARGET))
+        info: dict[str, Any] = {"distance": distance, "position": self.position.copy()}
+        if self.report_success:
+            info["success"] = distance < self.radius
+        return info
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        self.position = self.np_random.uniform(-0.9, 0.1, size=2).astype(np.float32)
+        return self._draw(self.obs_size), self._info()
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        delta = 0.15 * np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0)
+        self.position = np.clip(self.position + delta, -1.0, 1.0).astype(np.float32)
+        info = self._info()
+        return self._draw(self.obs_size), -info["distance"], False, False, info
+
+    def render(self) -> np.ndarray | None:
+        return self._draw(self.render_size) if self.render_mode == "rgb_array" else None
+
+
+if "DotReach-v0" not in gym.registry:
+    gym.register(id="DotReach-v0", entry_point="learner.testing_envs:DotReach", max_episode_steps=50)

@@ -1,0 +1,160 @@
+// Small SVG line charts: no dependencies. new LineChart(element, {title, series: [{name, label, color}], yMin, yMax}).
+"use strict";
+
+const SVG_NS = "http://www.w3.org/2000/svg";
+const CHART_W = 520;
+const CHART_H = 220;
+const PAD = { left: 48, right: 14, top: 10, bottom: 28 };
+
+function niceTicks(min, max, count) {
+  if (min === max) {
+    const pad = Math.abs(min) > 0 ? Math.abs(min) * 0.1 : 1;
+    min -= pad;
+    max += pad;
+  }
+  const span = max - min;
+  const rough = span / count;
+  const magnitude = Math.pow(10, Math.floor(Math.log10(rough)));
+  const step = [1, 2, 2.5, 5, 10].map((m) => m * magnitude).find((s) => span / s <= count) || magnitude * 10;
+  const start = Math.floor(min / step) * step;
+  const end = Math.ceil(max / step) * step;
+  const ticks = [];
+  for (let v = start; v <= end + step / 2; v += step) ticks.push(Number(v.toPrecision(12)));
+  return ticks;
+}
+
+function tickLabel(value) {
+  const abs = Math.abs(value);
+  if (abs >= 1e6) return Number((value / 1e6).toFixed(abs >= 1e7 ? 0 : 1)) + "M";
+  if (abs >= 1e3) return Number((value / 1e3).toFixed(abs >= 1e4 ? 0 : 1)) + "k";
+  if (abs !== 0 && abs < 0.01) return value.toExponential(0);
+  return String(Number(value.toPrecision(3)));
+}
+
+class LineChart {
+  constructor(element, options) {
+    this.element = element;
+    this.options = options;
+    this.data = {};
+    element.classList.add("chart");
+    element.innerHTML = "";
+    const head = document.createElement("div");
+    head.className = "chart-head";
+    head.innerHTML = `<div class="chart-title">${escapeHtml(options.title)}</div>`;
+    this.legend = document.createElement("div");
+    this.legend.className = "chart-legend";
+    head.appendChild(this.legend);
+    element.appendChild(head);
+    this.svg = document.createElementNS(SVG_NS, "svg");
+    this.svg.setAttribute("viewBox", `0 0 ${CHART_W} ${CHART_H}`);
+    this.svg.setAttribute("role", "img");
+    this.svg.setAttribute("aria-label", options.title);
+    element.appendChild(this.svg);
+    this.render();
+  }
+
+  /** Merge new points ({name: [[step, value], ...]}); a point at an existing step replaces it. */
+  add(series) {
+    let changed = false;
+    for (const spec of this.options.series) {
+      const points = series[spec.name];
+      if (!points || !points.length) continue;
+      const existing = this.data[spec.name] || [];
+      const byStep = new Map(existing.map((p) => [p[0], p[1]]));
+      for (const [step, value] of points) byStep.set(step, value);
+      this.data[spec.name] = [...byStep.entries()].sort((a, b) => a[0] - b[0]);
+      changed = true;
+    }
+    if (changed) this.render();
+  }
+
+  render() {
+    const svg = this.svg;
+    while (svg.firstChild) svg.removeChild(svg.firstChild);
+    const series = this.options.series.map((spec) => ({ ...spec, points: this.data[spec.name] || [] }));
+    const all = series.flatMap((s) => s.points);
+    this.legend.innerHTML = series
+      .map((s) => {
+        const last = s.points.length ? s.points[s.points.length - 1][1] : null;
+        const shown = this.options.percent && last !== null ? fmtPercent(last) : fmtNumber(last, 3);
+        return `<span style="--swatch:${s.color}" data-series="${escapeHtml(s.name)}">${escapeHtml(s.label)}<b>${shown}</b></span>`;
+      })
+      .join("");
+    if (!all.length) {
+      this.text(CHART_W / 2, CHART_H / 2, "no data yet", "middle", "no-data");
+      return;
+    }
+    let xMin = Math.min(...all.map((p) => p[0]));
+    let xMax = Math.max(...all.map((p) => p[0]));
+    if (xMin === xMax) {
+      xMin = Math.max(0, xMin - 1);
+      xMax = xMax + 1;
+    }
+    let yMin = Math.min(...all.map((p) => p[1]));
+    let yMax = Math.max(...all.map((p) => p[1]));
+    if (this.options.yMin !== undefined) yMin = Math.min(yMin, this.options.yMin);
+    if (this.options.yMax !== undefined) yMax = Math.max(yMax, this.options.yMax);
+    const yTicks = niceTicks(yMin, yMax, 4);
+    yMin = yTicks[0];
+    yMax = yTicks[yTicks.length - 1];
+    const xTicks = niceTicks(xMin, xMax, 5).filter((t) => t >= xMin && t <= xMax);
+    const plotW = CHART_W - PAD.left - PAD.right;
+    const plotH = CHART_H - PAD.top - PAD.bottom;
+    const x = (v) => PAD.left + ((v - xMin) / (xMax - xMin)) * plotW;
+    const y = (v) => PAD.top + (1 - (v - yMin) / (yMax - yMin || 1)) * plotH;
+
+    for (const t of yTicks) {
+      this.line(PAD.left, y(t), CHART_W - PAD.right, y(t), "grid");
+      this.text(PAD.left - 6, y(t) + 4, this.options.percent ? fmtPercent(t) : tickLabel(t), "end");
+    }
+    for (const t of xTicks) {
+      this.text(x(t), CHART_H - PAD.bottom + 16, tickLabel(t), "middle");
+    }
+    this.line(PAD.left, PAD.top + plotH, CHART_W - PAD.right, PAD.top + plotH, "axis");
+    this.text(CHART_W - PAD.right, CHART_H - 2, "env steps", "end");
+
+    for (const s of series) {
+      if (!s.points.length) continue;
+      const d = s.points.map((p, i) => (i ? "L" : "M") + x(p[0]).toFixed(1) + " " + y(p[1]).toFixed(1)).join(" ");
+      const path = document.createElementNS(SVG_NS, "path");
+      path.setAttribute("d", d);
+      path.setAttribute("class", "series");
+      path.setAttribute("stroke", s.color);
+      path.setAttribute("data-series", s.name);
+      svg.appendChild(path);
+      if (s.points.length <= 40) {
+        for (const p of s.points) {
+          const dot = document.createElementNS(SVG_NS, "circle");
+          dot.setAttribute("cx", x(p[0]).toFixed(1));
+          dot.setAttribute("cy", y(p[1]).toFixed(1));
+          dot.setAttribute("r", "2.5");
+          dot.setAttribute("fill", s.color);
+          const title = document.createElementNS(SVG_NS, "title");
+          title.textContent = `${s.label} at step ${p[0]}: ${fmtNumber(p[1], 4)}`;
+          dot.appendChild(title);
+          svg.appendChild(dot);
+        }
+      }
+    }
+  }
+
+  line(x1, y1, x2, y2, cls) {
+    const line = document.createElementNS(SVG_NS, "line");
+    line.setAttribute("x1", x1);
+    line.setAttribute("y1", y1);
+    line.setAttribute("x2", x2);
+    line.setAttribute("y2", y2);
+    line.setAttribute("class", cls);
+    this.svg.appendChild(line);
+  }
+
+  text(xPos, yPos, content, anchor, cls) {
+    const text = document.createElementNS(SVG_NS, "text");
+    text.setAttribute("x", xPos);
+    text.setAttribute("y", yPos);
+    text.setAttribute("text-anchor", anchor);
+    if (cls) text.setAttribute("class", cls);
+    text.textContent = content;
+    this.svg.appendChild(text);
+  }
+}

@@ -1,0 +1,138 @@
+// Run page: status and stats (every 2 s), curves from /api/runs/{id}/metrics?since_step=, rollout, queries, events.
+"use strict";
+
+const COLORS = ["#2f6fdf", "#e07b00", "#1f9d55", "#8e44ad", "#d64545", "#0f9bb4"];
+
+const CHARTS = [
+  { id: "chart-success", title: "Evaluation success rate", percent: true, yMin: 0, yMax: 1,
+    series: [["eval/success_rate", "success"]] },
+  { id: "chart-return", title: "Return",
+    series: [["eval/return", "evaluation"], ["train/episode_return", "training episodes"]] },
+  { id: "chart-reward-loss", title: "Reward classifier loss", series: [["reward/loss", "loss"]] },
+  { id: "chart-reward-acc", title: "Reward classifier accuracy", percent: true, yMin: 0, yMax: 1,
+    series: [["reward/acc_goal", "on goal photos"], ["reward/acc_replay", "on replay frames"]] },
+  { id: "chart-logits", title: "Mean classifier score fψ",
+    series: [["reward/mean_logit_goal", "goal photos"], ["reward/mean_logit_recent", "recent frames"]] },
+  { id: "chart-queries", title: "Queries", yMin: 0,
+    series: [["queries/asked", "asked"], ["queries/answered", "answered"], ["queries/yes", "yes"]] },
+  { id: "chart-sac", title: "SAC losses", series: [["critic/loss", "critic"], ["actor/loss", "actor"]] },
+  { id: "chart-alpha", title: "Entropy temperature α", series: [["alpha/value", "α"]] },
+];
+
+const page = { run: null, charts: [], lastStep: -1, rolloutId: null, lastEventId: 0 };
+
+function renderRun(run) {
+  page.run = run;
+  document.getElementById("run-status").innerHTML = statusPill(run);
+  const reason = document.getElementById("run-reason");
+  if (run.status === "failed" && run.status_reason) {
+    reason.className = "reason";
+    reason.textContent = "Failed: " + run.status_reason;
+  } else if (run.status === "queued") {
+    reason.className = "muted small";
+    reason.textContent = "Waiting for a learner to pick it up (start one with `raq learn`).";
+  } else if (run.status === "starting") {
+    reason.className = "muted small";
+    reason.textContent = "A learner took the run and is setting up (environment, networks, checkpoint).";
+  } else {
+    reason.textContent = "";
+  }
+  document.getElementById("stat-step").textContent = `${fmtSteps(run.step)} / ${fmtSteps(run.total_steps)}`;
+  document.getElementById("stat-progress").innerHTML = run.total_steps
+    ? `<div class="progress" style="margin-top:0.35rem"><div style="width:${Math.min(100, (100 * run.step) / run.total_steps).toFixed(1)}%"></div></div>`
+    : "";
+  document.getElementById("stat-success").textContent = fmtPercent(run.success_rate);
+  document.getElementById("stat-heartbeat").textContent = run.heartbeat_at ? fmtAge(run.heartbeat_age_seconds) : "–";
+  document.getElementById("stat-worker").textContent = run.worker ? run.worker : "no learner yet";
+  const active = run.status === "training" || run.status === "starting";
+  document.getElementById("stat-speed").textContent = active || run.steps_per_second ? fmtNumber(run.steps_per_second, 1) : "–";
+  document.getElementById("stat-eta").textContent = active ? fmtDuration(run.eta_seconds) : run.status === "finished" ? "done" : "–";
+  const q = run.queries;
+  document.getElementById("stat-queries").textContent = `${q.answered} / ${q.asked}`;
+  document.getElementById("stat-queries-sub").innerHTML =
+    `answered · ${q.yes} yes` + (q.pending ? ` · <a href="/queue?run=${run.id}"><b>${q.pending} waiting</b></a>` : "");
+  const canStop = run.status === "queued" || (active && !run.stop_requested);
+  const canResume = run.status === "stopped" || run.status === "failed";
+  document.getElementById("stop-run").classList.toggle("hidden", !canStop);
+  document.getElementById("resume-run").classList.toggle("hidden", !canResume);
+
+  const rollout = run.latest_rollout;
+  if (rollout && rollout.id !== page.rolloutId) {
+    page.rolloutId = rollout.id;
+    const image = document.getElementById("rollout");
+    image.src = rollout.url;
+    image.classList.remove("hidden");
+  }
+  if (rollout) {
+    const parts = [`step ${fmtSteps(rollout.env_step)}`, `${rollout.frame_count} frames`];
+    if (rollout.success !== null) parts.push(`success ${fmtPercent(rollout.success)}`);
+    if (rollout.episode_return !== null) parts.push(`return ${fmtNumber(rollout.episode_return, 1)}`);
+    document.getElementById("rollout-caption").textContent = parts.join(" · ");
+  }
+}
+
+async function refreshRun() {
+  renderRun(await api("GET", `/api/runs/${page.run.id}`));
+}
+
+async function refreshMetrics() {
+  // Ask from the last step again: metrics written later at that same step are merged, not missed.
+  const since = page.lastStep >= 0 ? page.lastStep - 1 : -1;
+  const data = await api("GET", `/api/runs/${page.run.id}/metrics?since_step=${since}`);
+  page.lastStep = Math.max(page.lastStep, data.last_step);
+  for (const chart of page.charts) chart.add(data.series);
+}
+
+async function refreshQueries() {
+  const queries = await api("GET", `/api/queries?run_id=${page.run.id}&limit=60`);
+  const done = queries.filter((q) => q.status !== "pending");
+  document.getElementById("answered-empty").classList.toggle("hidden", done.length > 0);
+  document.getElementById("answered").innerHTML = done
+    .map((q) => {
+      const tag = q.status === "skipped" ? "skipped" : q.answer ? "yes" : "no";
+      const label = tag === "skipped" ? "skip" : tag;
+      return `<figure data-query-id="${q.id}" title="query #${q.id} · step ${q.env_step} · fψ ${fmtNumber(q.score, 2)}${q.labeler ? " · " + escapeHtml(q.labeler) : ""}">
+        <img class="thumb pixelated" src="${q.model_image_url}" alt="query ${q.id}" loading="lazy">
+        <span class="answer-tag ${tag}">${label}</span>
+        <figcaption>step ${fmtSteps(q.env_step)} · fψ ${fmtNumber(q.score, 1)}</figcaption></figure>`;
+    })
+    .join("");
+}
+
+async function refreshEvents() {
+  const events = await api("GET", `/api/runs/${page.run.id}/events?limit=100`);
+  document.getElementById("events").innerHTML = events
+    .map((e) => `<li class="${escapeHtml(e.level)}"><time>${fmtTime(e.created_at)}</time><span>${escapeHtml(e.message)}</span></li>`)
+    .join("") || '<li class="muted">No events.</li>';
+}
+
+async function runAction(action) {
+  try {
+    renderRun(await api("POST", `/api/runs/${page.run.id}/${action}`));
+    toast(action === "stop" ? "Stop requested." : "Queued again: a learner resumes it from its last checkpoint.");
+    refreshEvents();
+  } catch (error) {
+    toast(error.message, "error", 6000);
+  }
+}
+
+document.addEventListener("DOMContentLoaded", () => {
+  page.run = JSON.parse(document.getElementById("run-data").textContent);
+  page.charts = CHARTS.map(
+    (spec) =>
+      new LineChart(document.getElementById(spec.id), {
+        title: spec.title,
+        percent: spec.percent,
+        yMin: spec.yMin,
+        yMax: spec.yMax,
+        series: spec.series.map(([name, label], i) => ({ name, label, color: COLORS[i % COLORS.length] })),
+      })
+  );
+  renderRun(page.run);
+  document.getElementById("stop-run").addEventListener("click", () => runAction("stop"));
+  document.getElementById("resume-run").addEventListener("click", () => runAction("resume"));
+  poll(refreshRun, 2000);
+  poll(refreshMetrics, 2000);
+  poll(refreshQueries, 4000);
+  poll(refreshEvents, 4000);
+});

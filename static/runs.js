@@ -1,0 +1,41 @@
+// Runs page: the table, refreshed every 3 s from /api/runs.
+"use strict";
+
+function runRow(run) {
+  const progress = run.total_steps ? Math.min(1, run.step / run.total_steps) : 0;
+  const reason = run.status === "failed" && run.status_reason
+    ? `<div class="reason">${escapeHtml(run.status_reason)}</div>` : "";
+  const pending = run.queries.pending
+    ? ` · <a href="/queue?run=${run.id}"><b>${run.queries.pending} waiting</b></a>` : "";
+  const eta = run.eta_seconds !== null && (run.status === "training" || run.status === "starting")
+    ? ` · ETA ${fmtDuration(run.eta_seconds)}` : "";
+  return `<tr data-run-id="${run.id}">
+    <td><a href="/runs/${run.id}"><b>#${run.id}</b></a> ${escapeHtml(run.name)}</td>
+    <td>${escapeHtml(run.env_id)}</td>
+    <td><code>${escapeHtml(run.algorithm)}</code></td>
+    <td>${statusPill(run)}${reason}</td>
+    <td style="min-width:170px">
+      <div class="small">${fmtSteps(run.step)} / ${fmtSteps(run.total_steps)}<span class="muted">${eta}</span></div>
+      <div class="progress"><div style="width:${(progress * 100).toFixed(1)}%"></div></div>
+    </td>
+    <td class="num">${fmtPercent(run.success_rate)}</td>
+    <td class="num">${run.queries.answered}/${run.queries.asked}${pending}</td>
+    <td class="num">${run.heartbeat_at ? fmtAge(run.heartbeat_age_seconds) : "–"}</td>
+  </tr>`;
+}
+
+function renderRuns(runs) {
+  const body = document.getElementById("runs-body");
+  if (!runs.length) {
+    body.innerHTML = `<tr><td colspan="8" class="empty">No runs yet. Create a <a href="/goal-sets">goal set</a>
+      with a few photos of success, then <a href="/runs/new">start a run</a>.</td></tr>`;
+    return;
+  }
+  body.innerHTML = runs.map(runRow).join("");
+  setPendingBadge(runs.reduce((total, run) => total + run.queries.pending, 0));
+}
+
+document.addEventListener("DOMContentLoaded", () => {
+  renderRuns(JSON.parse(document.getElementById("runs-data").textContent));
+  setTimeout(() => poll(async () => renderRuns(await api("GET", "/api/runs")), 3000), 3000);
+});

@@ -1,0 +1,138 @@
+"""Shared fixtures: a migrated temporary SQLite database, the app under TestClient, a live uvicorn server."""
+
+import io
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+from fastapi.testclient import TestClient
+from PIL import Image
+
+from app.main import create_app
+from app.migrate import upgrade
+from app.settings import Settings
+from app.store import Store
+
+ROOT = Path(__file__).resolve().parent.parent
+ARTIFACTS = ROOT / "test-artifacts"
+
+
+@pytest.fixture
+def database_url(tmp_path: Path) -> str:
+    url = f"sqlite:///{tmp_path / 'raq.sqlite3'}"
+    upgrade(url)
+    return url
+
+
+@pytest.fixture
+def store(database_url: str) -> Iterator[Store]:
+    opened = Store(database_url)
+    yield opened
+    opened.dispose()
+
+
+@pytest.fixture
+def make_settings(database_url: str, tmp_path: Path) -> Callable[..., Settings]:
+    def _make(**overrides: object) -> Settings:
+        values: dict[str, object] = {"database_url": database_url, "data_dir": tmp_path, "api_token": None}
+        values.update(overrides)
+        return Settings(_env_file=None, **values)  # type: ignore[arg-type]
+
+    return _make
+
+
+@pytest.fixture
+def make_client(make_settings: Callable[..., Settings]) -> Iterator[Callable[..., TestClient]]:
+    clients: list[TestClient] = []
+
+    def _make(**overrides: object) -> TestClient:
+        client = TestClient(create_app(make_settings(**overrides)))
+        client.__enter__()
+        clients.append(client)
+        return client
+
+    yield _make
+    for client in clients:
+        client.__exit__(None, None, None)
+
+
+@pytest.fixture
+def client(make_client: Callable[..., TestClient]) -> TestClient:
+    return make_client()
+
+
+def image_bytes(
+    size: tuple[int, int] = (96, 64), color: tuple[int, int, int] = (200, 40, 40), fmt: str = "PNG"
+) -> bytes:
+    """A small real image with a marker in one corner (so crops and resizes are visible)."""
+    image = Image.new("RGB", size, color)
+    for x in range(min(8, size[0])):
+        for y in range(min(8, size[1])):
+            image.putpixel((x, y), (255, 255, 255))
+    buffer = io.BytesIO()
+    image.save(buffer, format=fmt)
+    return buffer.getvalue()
+
+
+@pytest.fixture
+def make_image() -> Callable[..., bytes]:
+    return image_bytes
+
+
+@pytest.fixture
+def goal_set_with_photo(client: TestClient) -> dict:
+    goal_set = client.post("/api/goal-sets", json={"name": "puck on target"}).json()
+    response = client.post(
+        f"/api/goal-sets/{goal_set['id']}/examples", files=[("files", ("goal.png", image_bytes(), "image/png"))]
+    )
+    assert response.status_code == 201, response.text
+    return goal_set
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@pytest.fixture
+def live_server(database_url: str, tmp_path: Path) -> Iterator[str]:
+    """`raq serve` as the CLI runs it: uvicorn on app.main:create_app, 127.0.0.1, a free port, this test's DB."""
+    port = _free_port()
+    env = {key: value for key, value in os.environ.items() if not key.startswith("RAQ_")}
+    env.update({"RAQ_DATABASE_URL": database_url, "RAQ_DATA_DIR": str(tmp_path), "PYTHONUNBUFFERED": "1"})
+    log_path = tmp_path / "server.log"
+    with log_path.open("wb") as log:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "uvicorn", "--factory", "app.main:create_app",
+             "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning"],
+            cwd=tmp_path, env={**env, "PYTHONPATH": str(ROOT)}, stdout=log, stderr=subprocess.STDOUT,
+        )  # fmt: skip
+        base_url = f"http://127.0.0.1:{port}"
+        try:
+            deadline = time.monotonic() + 60
+            while True:
+                if process.poll() is not None:
+                    raise RuntimeError(f"the server exited: {log_path.read_text()}")
+                try:
+                    if httpx.get(f"{base_url}/health", timeout=2).status_code == 200:
+                        break
+                except httpx.HTTPError:
+                    pass
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"the server did not answer /health in 60 s: {log_path.read_text()}")
+                time.sleep(0.2)
+            yield base_url
+        finally:
+            process.terminate()
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()

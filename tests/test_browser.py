@@ -1,0 +1,223 @@
+"""The pages in Debian's Chromium (Playwright for Python) against a real server and a real SQLite file.
+
+No learner runs here: the test writes a query, metrics, a heartbeat and a rollout through the Store,
+exactly as the learner would, and checks what a person sees and does.
+"""
+
+import io
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from PIL import Image, ImageDraw
+from playwright.sync_api import Browser, Page, expect, sync_playwright
+
+from app.store import RunStatus, Store
+
+ARTIFACTS = Path(__file__).resolve().parent.parent / "test-artifacts"
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+    "--disable-sync",
+]
+
+pytestmark = pytest.mark.browser
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Browser]:
+    with sync_playwright() as playwright:
+        launched = playwright.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+        yield launched
+        launched.close()
+
+
+@pytest.fixture
+def page(browser: Browser) -> Iterator[Page]:
+    context = browser.new_context(viewport={"width": 1360, "height": 900})
+    opened = context.new_page()
+    opened.set_default_timeout(15_000)
+    yield opened
+    context.close()
+
+
+def _scene(size: int, puck_at: tuple[float, float], *, fmt: str = "PNG") -> bytes:
+    """A pusher-like picture: table, red target, blue puck."""
+    image = Image.new("RGB", (size, size), (214, 196, 160))
+    draw = ImageDraw.Draw(image)
+    s = size / 100
+    draw.ellipse((62 * s, 62 * s, 86 * s, 86 * s), fill=(200, 40, 40))
+    x, y = puck_at
+    draw.ellipse(((x - 8) * s, (y - 8) * s, (x + 8) * s, (y + 8) * s), fill=(40, 70, 200))
+    draw.rectangle((10 * s, 40 * s, 30 * s, 46 * s), fill=(90, 90, 90))
+    buffer = io.BytesIO()
+    image.save(buffer, format=fmt)
+    return buffer.getvalue()
+
+
+def _gif() -> bytes:
+    frames = [Image.open(io.BytesIO(_scene(128, (20 + 8 * i, 20 + 8 * i)))).convert("P") for i in range(8)]
+    buffer = io.BytesIO()
+    frames[0].save(buffer, format="GIF", save_all=True, append_images=frames[1:], duration=120, loop=0)
+    return buffer.getvalue()
+
+
+def _shot(page: Page, name: str) -> None:
+    ARTIFACTS.mkdir(exist_ok=True)
+    page.screenshot(path=str(ARTIFACTS / f"{name}.png"), full_page=True)
+
+
+def test_goal_photos_run_queue_and_curves(page: Page, live_server: str, store: Store, tmp_path: Path) -> None:
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+
+    # 1. a goal set with two photos uploaded through the page
+    page.goto(f"{live_server}/goal-sets")
+    expect(page.get_by_text("No goal sets yet")).to_be_visible()
+    page.fill("#goal-set-name", "puck on the red target")
+    page.click("#create-goal-set-button")
+    page.wait_for_url(re.compile(r"/goal-sets/\d+$"))
+    photos = []
+    for index, puck in enumerate([(74, 74), (72, 76)]):
+        path = tmp_path / f"goal-{index}.{'png' if index == 0 else 'jpg'}"
+        path.write_bytes(_scene(400, puck, fmt="PNG" if index == 0 else "JPEG"))
+        photos.append(str(path))
+    page.set_input_files("#goal-files", photos)
+    expect(page.locator(".example")).to_have_count(2)
+    expect(page.locator(".example img.pixelated").first).to_have_js_property("naturalWidth", 48)
+    _shot(page, "01-goal-set")
+    goal_set_id = int(page.url.rsplit("/", 1)[1])
+    assert len(store.list_goal_examples(goal_set_id=goal_set_id)) == 2
+
+    # a broken file is refused with a message, nothing stored
+    broken = tmp_path / "broken.png"
+    broken.write_bytes(b"not really a png")
+    page.set_input_files("#goal-files", [str(broken)])
+    expect(page.locator("#upload-status")).to_contain_text("broken.png")
+    assert len(store.list_goal_examples(goal_set_id=goal_set_id)) == 2
+
+    # 2. a run started from the new-run page; a bad value first shows the error beside its field
+    page.goto(f"{live_server}/runs/new")
+    page.select_option("#env_id", "VisualPusher-v0")
+    expect(page.locator("#goal_set_id")).to_have_value(str(goal_set_id))
+    page.fill("#query_every", "0")
+    page.click("#start-run")
+    expect(page.locator('.field[data-field="query_every"] .error')).to_contain_text("at least 1")
+    _shot(page, "02-new-run-error")
+    page.fill("#query_every", "500")
+    page.fill("#total_steps", "20000")
+    page.click("#start-run")
+    page.wait_for_url(re.compile(r"/runs/\d+$"))
+    run_id = int(page.url.rsplit("/", 1)[1])
+    run = store.get_run(run_id=run_id)
+    assert (run.status, run.goal_set_id, run.config["query_every"], run.total_steps) == (
+        "queued",
+        goal_set_id,
+        500,
+        20000,
+    )
+    expect(page.locator("#run-status")).to_contain_text("queued")
+
+    # 3. the learner's writes, made here through the store
+    claimed = store.claim_next_run(worker="test-learner")
+    assert claimed is not None and claimed.id == run_id
+    store.heartbeat(run_id=run_id, worker="test-learner", step=6000, status=RunStatus.TRAINING)
+    for step in range(1000, 7000, 1000):
+        progress = step / 6000
+        store.record_metrics(
+            run_id=run_id,
+            step=step,
+            values={
+                "eval/success_rate": round(0.75 * progress, 3),
+                "eval/return": -40 + 30 * progress,
+                "train/episode_return": -45 + 28 * progress,
+                "reward/loss": 0.7 * (1 - 0.6 * progress),
+                "reward/acc_goal": 0.6 + 0.35 * progress,
+                "reward/acc_replay": 0.55 + 0.4 * progress,
+                "reward/mean_logit_goal": 3 * progress,
+                "reward/mean_logit_recent": -2 + progress,
+                "queries/asked": step // 2000,
+                "queries/answered": max(0, step // 2000 - 1),
+                "queries/yes": max(0, step // 3000 - 1),
+                "critic/loss": 1.2 - progress,
+                "actor/loss": -2 * progress,
+                "alpha/value": 1.0 - 0.8 * progress,
+                "perf/steps_per_second": 85.0,
+                "perf/eta_seconds": 14000 / 85.0,
+            },
+        )
+    store.record_rollout(run_id=run_id, env_step=6000, data=_gif(), frame_count=8, success=1.0, episode_return=-12.5)
+    query = store.post_query(
+        run_id=run_id, env_step=5500, model_png=_scene(48, (70, 72)), display_png=_scene(256, (70, 72)), score=2.2,
+        ground_truth_success=1.0, info={"puck_to_goal": 0.03},
+    )  # fmt: skip
+
+    # 4. answer it with the keyboard in the queue
+    page.goto(f"{live_server}/queue?run={run_id}")
+    expect(page.locator("#queue-item")).to_be_visible()
+    expect(page.locator("#query-facts")).to_contain_text("2.2")
+    expect(page.locator("#goal-strip img")).to_have_count(4)  # two photos, each as taken and as the model sees it
+    expect(page.locator("#query-display")).to_have_js_property("naturalWidth", 256)
+    _shot(page, "03-queue")
+    page.keyboard.press("y")
+    expect(page.locator("#queue-empty")).to_be_visible()
+    expect(page.get_by_text("No queries waiting.")).to_be_visible()
+    expect(page.locator("#nav-pending")).to_have_text("0")
+    answered = store.get_query(query_id=query.id)
+    assert (answered.status, answered.answer, answered.labeler) == ("answered", True, "web")
+    _shot(page, "04-queue-empty")
+
+    # U undoes while the learner has not read the answer; once it has, the 409 message shows
+    page.keyboard.press("u")
+    expect(page.locator("#queue-item")).to_be_visible()
+    assert store.get_query(query_id=query.id).status == "pending"
+    page.keyboard.press("n")
+    expect(page.locator("#queue-empty")).to_be_visible()
+    assert store.get_query(query_id=query.id).answer is False
+    store.new_answers(run_id=run_id)  # the learner takes the answer into its classifier
+    page.keyboard.press("u")
+    expect(page.locator("#queue-message")).to_contain_text("already used")
+    assert store.get_query(query_id=query.id).answer is False
+
+    # a new query arrives without a reload
+    store.post_query(run_id=run_id, env_step=6500, model_png=_scene(48, (30, 30)), display_png=_scene(256, (30, 30)),
+                     score=0.4, ground_truth_success=0.0)  # fmt: skip
+    expect(page.locator("#queue-item")).to_be_visible(timeout=10_000)
+    page.keyboard.press("s")
+    expect(page.locator("#queue-empty")).to_be_visible()
+
+    # 5. the run page draws the curves and shows the numbers
+    page.goto(f"{live_server}/runs/{run_id}")
+    expect(page.locator("#run-status")).to_contain_text("training")
+    expect(page.locator("#stat-success")).to_have_text("75%")
+    expect(page.locator("#stat-speed")).to_have_text("85")
+    expect(page.locator("#stat-step")).to_contain_text("6k / 20k")
+    expect(page.locator("#chart-success path.series")).to_have_count(1)
+    expect(page.locator("#chart-logits path.series")).to_have_count(2)
+    expect(page.locator("#chart-queries path.series")).to_have_count(3)
+    path = page.locator("#chart-success path.series").get_attribute("d") or ""
+    assert path.startswith("M") and path.count("L") == 5
+    expect(page.locator("#chart-success .chart-legend")).to_contain_text("75%")
+    expect(page.locator("#rollout")).to_have_js_property("complete", True)
+    expect(page.locator("#rollout-caption")).to_contain_text("8 frames")
+    expect(page.locator("#answered figure")).to_have_count(2)
+    expect(page.locator("#events")).to_contain_text("claimed by test-learner")
+
+    # more metrics appear without a reload (the page polls with since_step)
+    store.record_metrics(run_id=run_id, step=7000, values={"eval/success_rate": 0.9})
+    expect(page.locator("#chart-success .chart-legend")).to_contain_text("90%", timeout=10_000)
+    expect(page.locator("#stat-success")).to_have_text("90%", timeout=10_000)
+    _shot(page, "05-run")
+
+    page.click("#stop-run")
+    expect(page.locator("#run-status")).to_contain_text("stopping")
+    assert store.get_run(run_id=run_id).stop_requested is True
+
+    page.goto(live_server)
+    expect(page.locator(f'tr[data-run-id="{run_id}"]')).to_contain_text("VisualPusher-v0")
+    _shot(page, "06-runs")
+    assert errors == []

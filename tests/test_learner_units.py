@@ -1,0 +1,260 @@
+"""Learner parts on small synthetic data: losses, mixup, the AIRL logit, replay, query selection."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from learner.config import TrainConfig
+from learner.networks import squashed_gaussian_sample, to_float
+from learner.queries import QuerySelector
+from learner.replay import ReplayBuffer, random_shift
+from learner.reward import RewardModel, mixup
+from learner.sac import SACAgent
+
+torch.set_num_threads(1)
+SIZE = 16
+
+
+def tiny(**overrides: object) -> TrainConfig:
+    values: dict[str, object] = dict(
+        image_size=SIZE, conv_filters=4, hidden_dim=32, batch_size=16, classifier_batch_size=16, precision="fp32"
+    )
+    values.update(overrides)
+    return TrainConfig(**values)  # type: ignore[arg-type]
+
+
+def goal_like(rng: np.random.Generator, count: int) -> np.ndarray:
+    """Dark noise with a bright green square: the 'goal' class."""
+    images = rng.integers(0, 60, size=(count, SIZE, SIZE, 3), dtype=np.uint8)
+    images[:, 4:12, 4:12, 1] = 230
+    return images
+
+
+def replay_like(rng: np.random.Generator, count: int) -> np.ndarray:
+    """Dark noise with a red square somewhere: the 'replay' class."""
+    images = rng.integers(0, 60, size=(count, SIZE, SIZE, 3), dtype=np.uint8)
+    for image, (y, x) in zip(images, rng.integers(0, 8, size=(count, 2)), strict=True):
+        image[y : y + 8, x : x + 8, 0] = 230
+    return images
+
+
+# ---------------------------------------------------------------------------------------------- classifier
+@pytest.mark.parametrize("algorithm", ["raq", "vice_raq"])
+def test_classifier_separates_goals_from_negatives(algorithm: str) -> None:
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    config = tiny(algorithm=algorithm, classifier_lr=1e-3)
+    model = RewardModel(config, rng)
+    agent = SACAgent(config, action_dim=2)
+    policy = agent.policy if model.airl else None
+    goals, negatives = goal_like(rng, 64), replay_like(rng, 64)
+    for _ in range(60):
+        pick = rng.integers(0, 64, size=16)
+        metrics = model.update_classifier(goals[pick], negatives[pick], policy)
+    assert set(metrics) >= {"reward/loss", "reward/acc_goal", "reward/acc_replay", "reward/mean_logit_goal"}
+    test_goals, test_negatives = model.logits(goal_like(rng, 32)), model.logits(replay_like(rng, 32))
+    assert test_goals.min() > test_negatives.max()
+    if not model.airl:  # plain BCE: f itself is the classifier
+        assert (test_goals > 0).mean() > 0.9 and (test_negatives < 0).mean() > 0.9
+
+
+def test_mixup_mixes_images_and_labels_with_the_same_lambda() -> None:
+    images = torch.rand(8, 3, SIZE, SIZE)
+    labels = torch.tensor([1.0] * 4 + [0.0] * 4)
+    mixed_images, mixed_labels = mixup(images, labels, 1.0, np.random.default_rng(3))
+    replay_rng = np.random.default_rng(3)
+    lam = torch.from_numpy(replay_rng.beta(1.0, 1.0, size=8).astype(np.float32))
+    perm = torch.from_numpy(replay_rng.permutation(8))
+    expected = lam.view(-1, 1, 1, 1) * images + (1 - lam.view(-1, 1, 1, 1)) * images[perm]
+    torch.testing.assert_close(mixed_images, expected)
+    torch.testing.assert_close(mixed_labels, lam * labels + (1 - lam) * labels[perm])
+    assert ((mixed_labels >= 0) & (mixed_labels <= 1)).all()
+    low, high = torch.minimum(images, images[perm]), torch.maximum(images, images[perm])
+    assert ((mixed_images >= low - 1e-6) & (mixed_images <= high + 1e-6)).all()
+    assert not torch.equal(mixed_labels, labels)  # it did mix
+    same, same_labels = mixup(images, labels, 0.0, np.random.default_rng(3))
+    assert same is images and same_labels is labels
+
+
+def test_vice_logit_is_f_minus_log_pi_of_a_fresh_action() -> None:
+    torch.manual_seed(1)
+    config = tiny(algorithm="vice")
+    model = RewardModel(config, np.random.default_rng(0))
+    agent = SACAgent(config, action_dim=3)
+    images = to_float(replay_like(np.random.default_rng(1), 6))
+    torch.manual_seed(7)
+    logits, f, log_pi = model.discriminator_logits(images, agent.policy)
+    assert log_pi is not None
+    torch.testing.assert_close(logits, f - log_pi)
+    # log pi of the sampled action, computed independently from the tanh-Gaussian density
+    torch.manual_seed(7)
+    action, _ = agent.policy(images)
+    with torch.no_grad():
+        mean, log_std = agent.actor(agent._features(images))
+    u = torch.atanh(action.clamp(-1 + 1e-6, 1 - 1e-6))
+    density = torch.distributions.Normal(mean, log_std.exp()).log_prob(u).sum(-1)
+    expected = density - torch.log(1 - action.pow(2) + 1e-12).sum(-1)
+    torch.testing.assert_close(log_pi, expected, atol=1e-3, rtol=1e-3)
+
+    # the loss that update_classifier minimises uses that logit: with a policy of known log pi = c,
+    # the loss is BCE(f - c, y) (no mixup here so the batch is the unmixed one)
+    config = tiny(algorithm="vice", mixup_alpha=0.0)
+    model = RewardModel(config, np.random.default_rng(0))
+    positives, negatives = goal_like(np.random.default_rng(2), 4), replay_like(np.random.default_rng(3), 4)
+    batch = to_float(np.concatenate([positives, negatives]))
+    with torch.no_grad():
+        f = model.net(batch)
+    c = 1.7
+
+    def known_policy(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return torch.zeros(len(x), 2), torch.full((len(x),), c)
+
+    metrics = model.update_classifier(positives, negatives, known_policy)
+    labels = torch.tensor([1.0] * 4 + [0.0] * 4)
+    assert metrics["reward/loss"] == pytest.approx(F.binary_cross_entropy_with_logits(f - c, labels).item(), rel=1e-5)
+    assert metrics["reward/mean_log_pi"] == pytest.approx(c)
+
+
+def test_squashed_gaussian_log_prob_matches_change_of_variables() -> None:
+    torch.manual_seed(0)
+    mean, log_std = torch.randn(5, 2) * 0.5, torch.randn(5, 2) * 0.3 - 0.5
+    torch.manual_seed(1)
+    action, log_pi = squashed_gaussian_sample(mean, log_std)
+    torch.manual_seed(1)
+    u = mean + log_std.exp() * torch.randn_like(mean)
+    density = torch.distributions.Normal(mean, log_std.exp()).log_prob(u).sum(-1)
+    expected = density - torch.log(1 - torch.tanh(u) ** 2).sum(-1)
+    torch.testing.assert_close(action, torch.tanh(u))
+    torch.testing.assert_close(log_pi, expected, atol=1e-4, rtol=1e-4)
+
+
+# ---------------------------------------------------------------------------------------------- SAC
+@pytest.mark.parametrize("shared", [True, False])
+def test_critic_fits_the_soft_bellman_target_and_alpha_moves(shared: bool) -> None:
+    torch.manual_seed(0)
+    config = tiny(shared_encoder=shared, critic_lr=3e-3, precision="bf16" if shared else "fp32")
+    agent = SACAgent(config, action_dim=2)
+    rng = np.random.default_rng(0)
+    obs, next_obs = to_float(replay_like(rng, 16)), to_float(replay_like(rng, 16))
+    action = torch.from_numpy(rng.uniform(-1, 1, (16, 2)).astype(np.float32))
+    reward, terminal = torch.full((16,), 2.0), torch.zeros(16)  # y = r on terminal transitions
+    first = agent.update_critic(obs, action, reward, next_obs, terminal)[0]["critic/loss"]
+    for _ in range(60):
+        metrics, actor_inputs = agent.update_critic(obs, action, reward, next_obs, terminal)
+    assert metrics["critic/loss"] < 0.1 * first
+    with torch.no_grad(), agent.autocast():
+        q1, q2 = agent.critic(agent._features(obs), action)
+    assert abs(q1.mean().item() - 2.0) < 0.3 and abs(q2.mean().item() - 2.0) < 0.3
+    critic_before = [p.clone() for p in agent.critic.parameters()]
+    grads_before = [p.grad.clone() for p in agent.critic.parameters()]
+    # the actor step leaves the critic alone; alpha falls when the entropy is above the target
+    agent.target_entropy = -100.0
+    out = agent.update_actor_and_alpha(actor_inputs)
+    assert set(out) >= {"actor/loss", "alpha/value"} and math.isfinite(out["actor/loss"])
+    assert out["alpha/value"] < config.initial_alpha
+    assert all(torch.equal(a, b) for a, b in zip(critic_before, agent.critic.parameters(), strict=True))
+    assert all(torch.equal(g, p.grad) for g, p in zip(grads_before, agent.critic.parameters(), strict=True))
+    target_before = [p.clone() for p in agent.critic_target.parameters()]
+    agent.update_target()
+    pairs = zip(agent.critic_target.parameters(), agent.critic.parameters(), strict=True)
+    for old, (new, online) in zip(target_before, pairs, strict=True):
+        torch.testing.assert_close(new, old + config.tau * (online - old))
+
+
+# ---------------------------------------------------------------------------------------------- replay
+def test_replay_stores_each_frame_once_and_shifts_like_drq() -> None:
+    rng = np.random.default_rng(0)
+    replay = ReplayBuffer(capacity=10, image_shape=(SIZE, SIZE, 3), action_dim=2)
+    frames = replay_like(rng, 4)
+    slots = [replay.add_frame(f) for f in frames]
+    for i in range(3):
+        replay.add(slots[i], np.full(2, i, np.float32), slots[i + 1], terminated=i == 2, success=float(i == 2))
+    assert replay.frames_added == 4 and len(replay) == 3
+    batch = replay.sample(rng, 32)
+    for j, index in enumerate(batch.indices):
+        np.testing.assert_array_equal(batch.obs[j], frames[index])
+        np.testing.assert_array_equal(batch.next_obs[j], frames[index + 1])
+        assert batch.not_done[j] == (0.0 if index == 2 else 1.0)
+    # random shift == replicate-pad by `pad` then crop at a random offset
+    shifted = random_shift(frames, 2, np.random.default_rng(5))
+    offsets = np.random.default_rng(5).integers(0, 5, size=(4, 2))
+    padded = np.pad(frames, ((0, 0), (2, 2), (2, 2), (0, 0)), mode="edge")
+    for k, (dy, dx) in enumerate(offsets):
+        np.testing.assert_array_equal(shifted[k], padded[k, dy : dy + SIZE, dx : dx + SIZE])
+
+
+def test_reward_cache_is_exact_per_classifier_version() -> None:
+    rng = np.random.default_rng(0)
+    config = tiny(algorithm="raq")
+    model = RewardModel(config, rng)
+    replay = ReplayBuffer(capacity=50, image_shape=(SIZE, SIZE, 3), action_dim=2)
+    frames = replay_like(rng, 21)
+    slots = [replay.add_frame(f) for f in frames]
+    for i in range(20):
+        replay.add(slots[i], np.zeros(2, np.float32), slots[i + 1], False, None)
+    indices = np.array([0, 5, 5, 19])
+    np.testing.assert_allclose(model.rewards(replay, indices), model.logits(frames[indices + 1]), rtol=1e-5)
+    model.update_classifier(goal_like(rng, 8), replay_like(rng, 8))
+    np.testing.assert_allclose(model.rewards(replay, indices), model.logits(frames[indices + 1]), rtol=1e-5)
+
+
+# ---------------------------------------------------------------------------------------------- queries
+def _images(count: int) -> list[np.ndarray]:
+    return [np.full((SIZE, SIZE, 3), i, dtype=np.uint8) for i in range(count)]
+
+
+def test_argmax_query_picks_the_best_since_the_last_query_and_never_repeats() -> None:
+    selector = QuerySelector("argmax", capacity=3)
+    images = _images(6)
+    rendered: list[int] = []
+
+    def render_of(i: int):  # the display render taken when the observation is made
+        def render() -> np.ndarray:
+            rendered.append(i)
+            return np.full((32, 32, 3), i, dtype=np.uint8)
+
+        return render
+
+    scores = [0.1, 2.5, 0.7, -1.0, 1.2]
+    for i, score in enumerate(scores):
+        selector.offer(score, images[i], render_of(i), env_step=i, info={"i": i}, success=float(i == 1))
+    assert 3 not in rendered  # only kept candidates are rendered
+    best = selector.select()
+    assert best is not None and best.env_step == 1 and best.score == 2.5
+    assert best.display[0, 0, 0] == 1 and best.info == {"i": 1} and best.success == 1.0
+    assert selector.select() is None  # candidates are those since the last query
+    # the same observation again, even with a higher score, is never asked again
+    assert not selector.offer(9.0, images[1].copy(), render_of(1), env_step=10)
+    selector.offer(0.3, images[5], render_of(5), env_step=11)
+    second = selector.select()
+    assert second is not None and second.env_step == 11
+    # re-scoring with the current classifier changes the choice
+    selector.offer(1.0, images[3], render_of(3), env_step=12)
+    selector.offer(0.5, images[4], render_of(4), env_step=13)
+    selector.rescore(lambda batch: batch[:, 0, 0, 0].astype(np.float32))  # image 4 now scores higher
+    third = selector.select()
+    assert third is not None and third.env_step == 13
+
+
+def test_entropy_strategy_picks_the_least_certain() -> None:
+    selector = QuerySelector("entropy", capacity=8)
+    images = _images(4)
+    for i, score in enumerate([3.0, -0.2, 0.9, -4.0]):
+        selector.offer(score, images[i], lambda: np.zeros((8, 8, 3), np.uint8), env_step=i)
+    chosen = selector.select()
+    assert chosen is not None and chosen.env_step == 1
+
+
+def test_selector_state_round_trips() -> None:
+    selector = QuerySelector("argmax", capacity=4)
+    images = _images(3)
+    for i in range(3):
+        selector.offer(float(i), images[i], lambda: np.ones((8, 8, 3), np.uint8), env_step=i, info={"x": [1, 2]})
+    selector.select()
+    restored = QuerySelector("argmax", capacity=4)
+    restored.load_state_dict(selector.state_dict())
+    assert restored.asked == selector.asked
+    assert not restored.offer(5.0, images[2], lambda: np.ones((8, 8, 3), np.uint8), env_step=9)

@@ -1,0 +1,237 @@
+"""The simulated tasks as Gymnasium envs: API conformance, determinism, success thresholds, and what the camera sees.
+
+Real MuJoCo physics and rendering (MUJOCO_GL=egl by default), no mocks.
+"""
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import warnings
+from collections.abc import Iterator
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from PIL import Image
+
+import sim
+from sim.door import VisualDoorEnv
+from sim.picker import VisualPickerEnv
+from sim.pusher import VisualPusherEnv
+
+ENV_IDS = list(sim.TASKS.values())
+ACTION_DIMS = {"VisualPusher-v0": 2, "VisualDoor-v0": 3, "VisualPicker-v0": 4}
+# Just inside / just outside a threshold.
+EPS = 1e-4
+
+
+@pytest.fixture
+def make_env() -> Iterator:
+    made: list[gymnasium.Env] = []
+
+    def _make(env_id: str, **kwargs) -> gymnasium.Env:
+        env = gymnasium.make(env_id, **kwargs)
+        made.append(env)
+        return env
+
+    yield _make
+    for env in made:
+        env.close()
+
+
+def changed_fraction(a: np.ndarray, b: np.ndarray, threshold: int = 30) -> float:
+    """Fraction of pixels whose largest channel difference exceeds `threshold`."""
+    return float((np.abs(a.astype(int) - b.astype(int)).max(axis=-1) > threshold).mean())
+
+
+def test_import_registers_the_three_tasks() -> None:
+    assert sim.TASKS == {"pusher": "VisualPusher-v0", "door": "VisualDoor-v0", "picker": "VisualPicker-v0"}
+    for env_id in ENV_IDS:
+        assert gymnasium.spec(env_id).max_episode_steps == 100
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("render_mode", [None, "rgb_array"])
+def test_check_env_passes(env_id: str, render_mode: str | None, make_env) -> None:
+    env = make_env(env_id, render_mode=render_mode)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(env.unwrapped)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_spaces_step_and_info(env_id: str, make_env) -> None:
+    env = make_env(env_id)
+    assert env.action_space.shape == (ACTION_DIMS[env_id],)
+    assert env.observation_space.shape == (48, 48, 3)
+    assert env.observation_space.dtype == np.uint8
+    obs, info = env.reset(seed=0)
+    assert obs.shape == (48, 48, 3) and obs.dtype == np.uint8
+    assert info["success"] == 0.0 and "hand_pos" in info
+    env.action_space.seed(0)
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    assert env.observation_space.contains(obs)
+    assert reward == info["success"] and isinstance(reward, float)
+    assert not terminated and not truncated
+
+
+def test_episode_is_truncated_after_100_steps(make_env) -> None:
+    env = make_env("VisualPusher-v0")
+    env.reset(seed=0)
+    for step in range(1, 101):
+        _, _, terminated, truncated, _ = env.step(np.zeros(2, dtype=np.float32))
+        assert not terminated
+        assert truncated == (step == 100)
+
+
+def test_image_size_and_render_size_kwargs(make_env) -> None:
+    env = make_env("VisualPusher-v0", image_size=84, render_mode="rgb_array", render_size=128)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (84, 84, 3)
+    assert env.observation_space.shape == (84, 84, 3)
+    frame = env.render()
+    assert frame.shape == (128, 128, 3) and frame.dtype == np.uint8
+    door = make_env("VisualDoor-v0", render_mode="rgb_array")
+    door.reset(seed=0)
+    assert door.render().shape == (256, 256, 3)
+    no_render = make_env("VisualDoor-v0")
+    no_render.reset(seed=0)
+    assert no_render.render() is None
+
+
+def test_display_view_shows_the_same_state_as_the_observation(make_env) -> None:
+    env = make_env("VisualPusher-v0", render_mode="rgb_array")
+    obs, _ = env.reset(seed=3)
+    display = env.unwrapped.render_display()
+    assert np.array_equal(display, env.render())
+    small = np.asarray(Image.fromarray(display).resize((48, 48), Image.Resampling.BILINEAR), dtype=int)
+    assert np.abs(small - obs.astype(int)).mean() < 12
+
+
+def test_close_frees_renderers(make_env) -> None:
+    env = make_env("VisualPicker-v0", render_mode="rgb_array")
+    env.reset(seed=0)
+    env.render()
+    assert len(env.unwrapped._renderers) == 2
+    env.close()
+    assert env.unwrapped._renderers == {}
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_seeded_resets_are_deterministic(env_id: str, make_env) -> None:
+    first, second = make_env(env_id), make_env(env_id)
+    obs_a, info_a = first.reset(seed=123)
+    obs_b, info_b = second.reset(seed=123)
+    assert np.array_equal(obs_a, obs_b)
+    actions = [np.full(ACTION_DIMS[env_id], 0.5, dtype=np.float32)] * 5
+    for action in actions:
+        obs_a, *_ = first.step(action)
+        obs_b, *_ = second.step(action)
+    assert np.array_equal(obs_a, obs_b)
+
+
+def test_resets_randomise_the_start_through_the_seed(make_env) -> None:
+    env = make_env("VisualPusher-v0")
+    mugs = np.array([env.reset(seed=seed)[1]["mug_pos"] for seed in range(40)])
+    hands = np.array([env.reset(seed=seed)[1]["hand_pos"] for seed in range(5)])
+    assert np.all(mugs >= [-0.1, -0.05]) and np.all(mugs <= [0.1, 0.1])
+    assert np.ptp(mugs[:, 0]) > 0.12 and np.ptp(mugs[:, 1]) > 0.08
+    assert np.allclose(hands, hands[0])
+
+    door = make_env("VisualDoor-v0")
+    angles = np.array([door.reset(seed=seed)[1]["door_angle"] for seed in range(40)])
+    closed = angles == 0.0
+    assert 8 <= closed.sum() <= 32
+    assert np.all(angles[~closed] > 0) and np.all(angles <= np.radians(15))
+
+    picker = make_env("VisualPicker-v0")
+    balls = np.array([picker.reset(seed=seed)[1]["ball_pos"] for seed in range(40)])
+    assert np.all(np.abs(balls[:, :2]) <= 0.05) and np.ptp(balls[:, 0]) > 0.06
+    assert np.allclose(balls[:, 2], 0.03)
+
+
+def test_pusher_success_flips_at_3_cm(make_env) -> None:
+    env: VisualPusherEnv = make_env("VisualPusher-v0").unwrapped
+    env.reset(seed=0)
+    goal = env.goal_pos
+    for direction in (np.array([1.0, 0.0]), np.array([0.6, -0.8])):
+        env.set_mug_pos(goal + (0.03 - EPS) * direction)
+        info = env.get_info()
+        assert info["success"] == 1.0 and info["mug_to_goal"] == pytest.approx(0.03 - EPS)
+        env.set_mug_pos(goal + (0.03 + EPS) * direction)
+        assert env.get_info()["success"] == 0.0
+
+
+def test_door_success_flips_at_45_degrees_plus_minus_0_1_rad(make_env) -> None:
+    env: VisualDoorEnv = make_env("VisualDoor-v0").unwrapped
+    env.reset(seed=0)
+    target = np.pi / 4
+    for sign in (-1.0, 1.0):
+        env.set_door_angle(target + sign * (0.1 - EPS))
+        info = env.get_info()
+        assert info["success"] == 1.0 and info["door_angle"] == pytest.approx(target + sign * (0.1 - EPS))
+        env.set_door_angle(target + sign * (0.1 + EPS))
+        assert env.get_info()["success"] == 0.0
+
+
+def test_picker_success_flips_at_3_cm_from_the_point_20_cm_above_the_table(make_env) -> None:
+    env: VisualPickerEnv = make_env("VisualPicker-v0").unwrapped
+    env.reset(seed=0)
+    goal = env.goal_pos
+    assert goal[2] == pytest.approx(0.2)
+    for direction in (np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.6, -0.8])):
+        env.set_ball_pos(goal + (0.03 - EPS) * direction)
+        info = env.get_info()
+        assert info["success"] == 1.0 and info["ball_to_goal"] == pytest.approx(0.03 - EPS)
+        env.set_ball_pos(goal + (0.03 + EPS) * direction)
+        assert env.get_info()["success"] == 0.0
+
+
+def test_camera_sees_the_objects_move(make_env) -> None:
+    pusher: VisualPusherEnv = make_env("VisualPusher-v0").unwrapped
+    pusher.reset(seed=0)
+    before = pusher.render_image(48)
+    pusher.set_mug_pos(pusher.mug_pos + np.array([0.06, 0.0]))
+    assert changed_fraction(before, pusher.render_image(48)) > 0.01
+
+    door: VisualDoorEnv = make_env("VisualDoor-v0").unwrapped
+    door.reset(seed=0)
+    door.set_door_angle(0.0)
+    before = door.render_image(48)
+    door.set_door_angle(np.pi / 4)
+    assert changed_fraction(before, door.render_image(48)) > 0.03
+
+    picker: VisualPickerEnv = make_env("VisualPicker-v0").unwrapped
+    picker.reset(seed=0)
+    before = picker.render_image(48)
+    picker.set_ball_pos(picker.ball_pos + np.array([0.0, 0.0, 0.1]))
+    assert changed_fraction(before, picker.render_image(48)) > 0.01
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_actions_move_the_hand_2_cm_per_unit_inside_the_workspace(env_id: str, make_env) -> None:
+    env = make_env(env_id)
+    env.reset(seed=0)
+    task_env = env.unwrapped
+    start = task_env.hand_pos
+    action = np.zeros(ACTION_DIMS[env_id], dtype=np.float32)
+    action[0] = 1.0
+    for _ in range(3):
+        env.step(action)
+    env.step(np.zeros_like(action))
+    moved = task_env.hand_pos - start
+    assert moved[0] == pytest.approx(0.06, abs=0.005)
+    assert np.abs(moved[1:]).max() < 0.003
+    for _ in range(40):
+        env.step(-np.ones_like(action))
+    assert np.all(task_env.hand_pos >= np.array(task_env.hand_low) - 0.003)
+
+
+def test_pusher_hand_height_is_fixed(make_env) -> None:
+    env = make_env("VisualPusher-v0")
+    env.reset(seed=0)
+    env.action_space.seed(1)
+    heights = [env.step(env.action_space.sample())[4]["hand_pos"][2] for _ in range(30)]
+    assert np.allclose(heights, VisualPusherEnv.hand_height, atol=0.002)
