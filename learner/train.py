@@ -11,6 +11,7 @@ outcome of the step. Episodes end on the time limit only (no terminal on success
 
 import contextlib
 import json
+import logging
 import threading
 import time
 from collections import defaultdict
@@ -42,6 +43,7 @@ from learner.replay import ReplayBuffer, shift_pad
 from learner.reward import AIRL_ALGORITHMS, CLASSIFIER_ALGORITHMS, RewardModel
 from learner.sac import SACAgent
 
+logger = logging.getLogger(__name__)
 QUERY_ALGORITHMS = ("vice_raq", "raq")
 POOL_ALGORITHMS = ("raq", "naive_classifier")
 CHECKPOINT_VERSION = 1
@@ -454,6 +456,8 @@ class Trainer:
         return Outcome.LOST
 
     def _event(self, message: str, level: str = "info") -> None:
+        """A progress message for the UI (the run's events) and the learner's console."""
+        logger.log(logging.ERROR if level == "error" else logging.INFO, "run %s: %s", self.run_id, message)
         self.store.record_event(run_id=self.run_id, message=message, level=level)
 
     # ================================================================== checkpoints

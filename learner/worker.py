@@ -9,6 +9,7 @@ stale_heartbeat_seconds another learner reclaims the run and resumes it from its
 
 import argparse
 import contextlib
+import logging
 import os
 import signal
 import socket
@@ -21,6 +22,8 @@ from types import FrameType
 from app.settings import Settings, get_settings
 from app.store import NotFound, RunStatus, Store
 from learner.train import Outcome, train_run
+
+logger = logging.getLogger(__name__)
 
 
 @contextmanager
@@ -70,6 +73,7 @@ def work(
                         return 0
                     interrupt.wait(poll_seconds)
                     continue
+                logger.info("%s claimed run %s (%s on %s)", worker, run.id, run.algorithm, run.env_id)
                 failed = _train_one(store, run.id, settings, worker, interrupt)
                 if once or interrupt.is_set():
                     return 1 if failed else 0
@@ -85,10 +89,12 @@ def _train_one(store: Store, run_id: int, settings: Settings, worker: str, inter
         outcome = train_run(store, run, checkpoint_dir=settings.checkpoint_dir, worker=worker, interrupt=interrupt)
     except Exception as error:
         reason = _last_line(error)
+        logger.exception("run %s failed: %s", run_id, reason)
         store.record_event(run_id=run_id, level="error", message="".join(traceback.format_exception(error))[-4000:])
         with contextlib.suppress(NotFound):  # the run was taken from this worker meanwhile
             store.set_run_status(run_id=run_id, status=RunStatus.FAILED, reason=reason, worker=worker)
         return True
+    logger.info("run %s: %s", run_id, outcome)
     return outcome not in (Outcome.FINISHED, Outcome.STOPPED, Outcome.REQUEUED, Outcome.LOST)
 
 
@@ -98,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--name", default=None, help="worker name shown in the UI (default host-pid)")
     parser.add_argument("--poll", type=float, default=2.0, help="seconds between looks for a queued run")
     args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     return work(get_settings(), worker_name=args.name, once=args.once, poll_seconds=args.poll)
 
 

@@ -25,6 +25,14 @@ TIMESTEP_S = 0.005
 FRAME_SKIP = 10
 
 
+def _contiguous(indices: list[int]) -> slice | np.ndarray:
+    """A slice when the indices are consecutive (cheaper to index with), else an index array."""
+    start = int(indices[0])
+    if list(indices) == list(range(start, start + len(indices))):
+        return slice(start, start + len(indices))
+    return np.array(indices)
+
+
 class SawyerMocapEnv(gym.Env[np.ndarray, np.ndarray]):
     """Base class: pixels in, end-effector displacements out. Subclasses define the task.
 
@@ -64,8 +72,8 @@ class SawyerMocapEnv(gym.Env[np.ndarray, np.ndarray]):
 
         self._hand_body = self.model.body("hand").id
         self._mocap = int(self.model.body_mocapid[self.model.body("hand_mocap").id])
-        self._hand_qpos = np.array([self.model.joint(f"hand_{axis}").qposadr[0] for axis in "xyz"])
-        self._hand_qvel = np.array([self.model.joint(f"hand_{axis}").dofadr[0] for axis in "xyz"])
+        self._hand_qpos = _contiguous([self.model.joint(f"hand_{axis}").qposadr[0] for axis in "xyz"])
+        self._hand_qvel = _contiguous([self.model.joint(f"hand_{axis}").dofadr[0] for axis in "xyz"])
         self._hand_low = np.array(self.hand_low, dtype=np.float64)
         self._hand_high = np.array(self.hand_high, dtype=np.float64)
 
@@ -84,8 +92,8 @@ class SawyerMocapEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._observe(), self.get_info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        action = np.clip(np.asarray(action, dtype=np.float64).reshape(self.action_dim), -1.0, 1.0)
-        self._apply_action(action)
+        action = np.asarray(action, dtype=np.float64).reshape(self.action_dim)
+        self._apply_action(np.minimum(np.maximum(action, -1.0), 1.0))
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         info = self.get_info()
         return self._observe(), float(info["success"]), False, False, info
@@ -141,11 +149,12 @@ class SawyerMocapEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _move_hand(self, delta: np.ndarray) -> None:
         """Move the mocap target by `delta` (in action units, 2 cm each) inside the workspace."""
-        current = self.data.mocap_pos[self._mocap]
-        target = np.clip(current + self.action_scale * delta, self._hand_low, self._hand_high)
+        target = self.data.mocap_pos[self._mocap] + self.action_scale * delta
+        np.minimum(np.maximum(target, self._hand_low, out=target), self._hand_high, out=target)
         hand = self.data.qpos[self._hand_qpos]
-        target = hand + np.clip(target - hand, -self.max_target_lead, self.max_target_lead)
-        self.data.mocap_pos[self._mocap] = target
+        lead = target - hand
+        np.minimum(np.maximum(lead, -self.max_target_lead, out=lead), self.max_target_lead, out=lead)
+        self.data.mocap_pos[self._mocap] = hand + lead
 
     # ------------------------------------------------------------------ task hooks
     def _reset_task(self) -> None:

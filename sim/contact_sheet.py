@@ -1,6 +1,6 @@
 """Contact sheet of the simulated tasks: a start state and a goal example for each, as a person and the model see it.
 
-    python -m sim.contact_sheet docs/contact_sheet.png
+python -m sim.contact_sheet docs/contact_sheet.png
 """
 
 from __future__ import annotations
@@ -33,7 +33,12 @@ def make_contact_sheet(seed: int = 0, image_size: int = 48) -> Image.Image:
         start_display = env.render()
         env.close()
         goal = make_goal_examples(task, 1, seed=seed, image_size=image_size, display_size=TILE)[0]
-        tiles = [Image.fromarray(start_display), Image.fromarray(goal.display), _upscale(start_obs), _upscale(goal.image)]
+        tiles = [
+            Image.fromarray(start_display),
+            Image.fromarray(goal.display),
+            _upscale(start_obs),
+            _upscale(goal.image),
+        ]
         rows.append((f"{task} ({env_id})", tiles))
 
     width = TILE * len(COLUMNS)

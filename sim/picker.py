@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import mujoco
@@ -75,7 +76,10 @@ class VisualPickerEnv(SawyerMocapEnv):
         self._ball_qpos = int(ball_joint.qposadr[0])
         self._ball_qvel = int(ball_joint.dofadr[0])
         self._ball_body = self.model.body("ball").id
-        self._goal_site = self.model.site("goal").id
+        # The goal point is a static site: read once from the model and never written to.
+        mujoco.mj_forward(self.model, self.data)
+        self._goal_pos = self.data.site_xpos[self.model.site("goal").id].copy()
+        self._goal_pos.flags.writeable = False
         self._finger_qpos = np.array([self.model.joint(n).qposadr[0] for n in ("left_finger", "right_finger")])
         self._finger_actuators = np.array([self.model.actuator(n).id for n in ("left_finger", "right_finger")])
         self._finger_travel = float(self.model.actuator_ctrlrange[self._finger_actuators[0], 1])
@@ -85,7 +89,7 @@ class VisualPickerEnv(SawyerMocapEnv):
     @property
     def goal_pos(self) -> np.ndarray:
         """The fixed point 20 cm above the table where the ball should be held."""
-        return self.data.site_xpos[self._goal_site].copy()
+        return self._goal_pos.copy()
 
     @property
     def ball_pos(self) -> np.ndarray:
@@ -112,16 +116,16 @@ class VisualPickerEnv(SawyerMocapEnv):
 
     def _apply_action(self, action: np.ndarray) -> None:
         self._move_hand(action[:3])
-        closing = 0.5 * (action[3] + 1.0) * self._finger_travel
-        self.data.ctrl[self._finger_actuators] = closing
+        self.data.ctrl[self._finger_actuators] = 0.5 * (action[3] + 1.0) * self._finger_travel
 
     def get_info(self) -> dict[str, Any]:
-        ball_to_goal = float(np.linalg.norm(self.ball_pos - self.goal_pos))
+        ball = self.ball_pos
+        ball_to_goal = math.dist(ball, self._goal_pos)
         return {
             "success": float(ball_to_goal <= self.success_radius),
             "ball_to_goal": ball_to_goal,
-            "ball_pos": self.ball_pos,
-            "goal_pos": self.goal_pos,
+            "ball_pos": ball,
+            "goal_pos": self._goal_pos.copy(),
             "hand_pos": self.hand_pos,
             "gripper_opening": self.gripper_opening,
         }

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import mujoco
@@ -21,7 +22,7 @@ class VisualPusherEnv(SawyerMocapEnv):
     ## Action Space
     `Box(-1, 1, (2,), float32)`: the desired displacement (dx, dy) of the end effector, 2 cm per unit, applied to a
     mocap target that the hand follows. The hand height is fixed and the target is clipped to the workspace
-    x in [-0.2, 0.2], y in [-0.2, 0.25] (metres).
+    x in [-0.16, 0.16], y in [-0.18, 0.22] (metres).
 
     | Num | Action                          | Min | Max | Unit              |
     |-----|---------------------------------|-----|-----|-------------------|
@@ -58,8 +59,8 @@ class VisualPusherEnv(SawyerMocapEnv):
     xml_file: ClassVar[str] = "pusher.xml"
     action_dim: ClassVar[int] = 2
     hand_height: ClassVar[float] = 0.035
-    hand_low: ClassVar[tuple[float, float, float]] = (-0.2, -0.2, hand_height)
-    hand_high: ClassVar[tuple[float, float, float]] = (0.2, 0.25, hand_height)
+    hand_low: ClassVar[tuple[float, float, float]] = (-0.16, -0.18, hand_height)
+    hand_high: ClassVar[tuple[float, float, float]] = (0.16, 0.22, hand_height)
     hand_init: ClassVar[tuple[float, float, float]] = (0.0, -0.15, hand_height)
     mug_low: ClassVar[tuple[float, float]] = (-0.1, -0.05)
     mug_high: ClassVar[tuple[float, float]] = (0.1, 0.1)
@@ -71,13 +72,16 @@ class VisualPusherEnv(SawyerMocapEnv):
         super().__init__(image_size=image_size, render_mode=render_mode, render_size=render_size)
         self._mug_qpos = np.array([self.model.joint(name).qposadr[0] for name in ("mug_x", "mug_y", "mug_yaw")])
         self._mug_qvel = np.array([self.model.joint(name).dofadr[0] for name in ("mug_x", "mug_y", "mug_yaw")])
-        self._goal_site = self.model.site("goal").id
         self._mug_body = self.model.body("mug").id
+        # The coaster is static: its centre is read once from the model and never written to.
+        mujoco.mj_forward(self.model, self.data)
+        self._goal_xy = self.data.site_xpos[self.model.site("goal").id, :2].copy()
+        self._goal_xy.flags.writeable = False
 
     @property
     def goal_pos(self) -> np.ndarray:
         """(x, y) of the coaster's centre: fixed for the life of the env."""
-        return self.data.site_xpos[self._goal_site, :2].copy()
+        return self._goal_xy.copy()
 
     @property
     def mug_pos(self) -> np.ndarray:
@@ -100,11 +104,12 @@ class VisualPusherEnv(SawyerMocapEnv):
         self._move_hand(np.array([action[0], action[1], 0.0]))
 
     def get_info(self) -> dict[str, Any]:
-        mug_to_goal = float(np.linalg.norm(self.mug_pos - self.goal_pos))
+        mug = self.mug_pos
+        mug_to_goal = math.hypot(mug[0] - self._goal_xy[0], mug[1] - self._goal_xy[1])
         return {
             "success": float(mug_to_goal <= self.success_radius),
             "mug_to_goal": mug_to_goal,
-            "mug_pos": self.mug_pos,
-            "goal_pos": self.goal_pos,
+            "mug_pos": mug,
+            "goal_pos": self._goal_xy.copy(),
             "hand_pos": self.hand_pos,
         }

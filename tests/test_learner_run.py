@@ -236,3 +236,19 @@ def test_sigterm_checkpoints_and_requeues(setup: tuple[Settings, Store, int]) ->
     assert state is not None and state["step"] == run.step
     messages = [event.message for event in store.events(run_id=run_id, limit=1000)]
     assert any("interrupted" in m and "queued again" in m for m in messages)
+
+
+def test_visual_pusher_run(setup: tuple[Settings, Store, int]) -> None:
+    """The sim's pusher through the same loop: queries carry its display render and ground truth."""
+    settings, store, goal_set_id = setup
+    config = tiny_config(
+        env_id="VisualPusher-v0", algorithm="vice_raq", total_steps=120, eval_episodes=1, display_size=64,
+        checkpoint_every=1000,
+    )  # fmt: skip
+    run_id = create_run(store, goal_set_id, config)
+    assert work(settings, worker_name="w", once=True) == 0
+    run = store.get_run(run_id=run_id)
+    assert run.status == RunStatus.FINISHED, run.status_reason
+    queries = store.list_queries(run_id=run_id)
+    assert queries and all(q.ground_truth_success in (0.0, 1.0) and "mug_pos" in q.info for q in queries)
+    assert "eval/success_rate" in {metric.name for metric in store.metrics(run_id=run_id)}
