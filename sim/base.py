@@ -92,7 +92,9 @@ class SawyerMocapEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._observe(), self.get_info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        action = np.asarray(action, dtype=np.float64).reshape(self.action_dim)
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != self.action_space.shape:
+            action = action.reshape(self.action_space.shape)
         self._apply_action(np.minimum(np.maximum(action, -1.0), 1.0))
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         info = self.get_info()

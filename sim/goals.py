@@ -1,9 +1,10 @@
 """Goal examples for the simulated tasks: images of success states, as the paper's 10 goal examples per task.
 
 Pusher: the scene is put straight into a success state (mug on the coaster with a little noise, hand at a varied
-place behind it). Door and picker: the scripted controller runs from a seeded reset until it succeeds, and the final
-frame is taken. Every example is checked to be a success. The goal itself (coaster, 45 degrees, point above the
-table) is fixed in the model and never modified, so it is identical across examples.
+place behind it). Door and picker: the scripted controller runs from a seeded reset until it succeeds, settles at a
+varied nearby pose (hook lifted a little; ball held at a point near the goal), and the final frame is taken.
+Every example is checked to be a success. The goal itself (coaster, 45 degrees, point above the table) is fixed in
+the model and never modified, so it is identical across examples.
 
     raq goals --task pusher -n 10 --out DIR [--seed S] [--image-size 48] [--display]
 """
@@ -20,6 +21,7 @@ import numpy as np
 from PIL import Image
 
 from sim import MAX_EPISODE_STEPS, TASKS
+from sim.picker import VisualPickerEnv
 from sim.pusher import VisualPusherEnv
 from sim.scripted import scripted_action
 
@@ -48,16 +50,35 @@ def _pusher_success_state(env: VisualPusherEnv, rng: np.random.Generator) -> Non
     env.set_hand_pos(np.array([hand_xy[0], hand_xy[1], env.hand_height]))
 
 
+def _settle_action(env: gymnasium.Env, target: np.ndarray) -> np.ndarray:
+    """After a scripted success, move to a nearby pose so goal examples vary: the ball (picker) or hook (door)."""
+    task_env = env.unwrapped
+    step = task_env.action_scale
+    if isinstance(task_env, VisualPickerEnv):
+        return np.append(np.clip((target - task_env.ball_pos) / step, -1.0, 1.0), 1.0)
+    return np.clip((target - task_env.hand_pos) / step, -1.0, 1.0)
+
+
 def _scripted_success(env: gymnasium.Env, rng: np.random.Generator) -> bool:
-    """Run the scripted controller until it succeeds, then hold for a few steps; True if it ends in success."""
-    hold_steps = int(rng.integers(0, 6))
-    for _ in range(MAX_EPISODE_STEPS - hold_steps):
+    """Run the scripted controller until it succeeds, then settle at a varied nearby pose; True if still a success.
+
+    Picker: the held ball moves to a random point within 1.5 cm (per axis) of the goal point. Door: the hook rises
+    by up to 10 cm from the handle (the door stays where it was pulled to).
+    """
+    for _ in range(MAX_EPISODE_STEPS):
         _, _, _, _, info = env.step(scripted_action(env))
         if info["success"]:
             break
-    for _ in range(hold_steps):
-        _, _, _, _, info = env.step(scripted_action(env))
-    return bool(env.unwrapped.get_info()["success"])
+    else:
+        return False
+    task_env = env.unwrapped
+    if isinstance(task_env, VisualPickerEnv):
+        target = task_env.goal_pos + rng.uniform(-0.015, 0.015, size=3)
+    else:
+        target = task_env.hand_pos + np.array([*rng.uniform(-0.01, 0.01, size=2), rng.uniform(0.0, 0.1)])
+    for _ in range(int(rng.integers(4, 9))):
+        env.step(_settle_action(env, target))
+    return bool(task_env.get_info()["success"])
 
 
 def make_goal_examples(

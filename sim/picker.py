@@ -8,7 +8,7 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
-from sim.base import SawyerMocapEnv
+from sim.base import SawyerMocapEnv, _contiguous
 
 
 class VisualPickerEnv(SawyerMocapEnv):
@@ -80,9 +80,9 @@ class VisualPickerEnv(SawyerMocapEnv):
         mujoco.mj_forward(self.model, self.data)
         self._goal_pos = self.data.site_xpos[self.model.site("goal").id].copy()
         self._goal_pos.flags.writeable = False
-        self._finger_qpos = np.array([self.model.joint(n).qposadr[0] for n in ("left_finger", "right_finger")])
-        self._finger_actuators = np.array([self.model.actuator(n).id for n in ("left_finger", "right_finger")])
-        self._finger_travel = float(self.model.actuator_ctrlrange[self._finger_actuators[0], 1])
+        self._finger_qpos = _contiguous([self.model.joint(n).qposadr[0] for n in ("left_finger", "right_finger")])
+        self._finger_actuators = _contiguous([self.model.actuator(n).id for n in ("left_finger", "right_finger")])
+        self._finger_travel = float(self.model.actuator_ctrlrange[self.model.actuator("left_finger").id, 1])
         self._finger_offset = float(abs(self.model.body_pos[self.model.body("left_finger").id, 0]))
         self._finger_half_width = float(self.model.geom_size[self.model.geom("left_finger").id, 0])
 
@@ -99,8 +99,8 @@ class VisualPickerEnv(SawyerMocapEnv):
     @property
     def gripper_opening(self) -> float:
         """Distance in metres between the fingers' inner faces."""
-        closed_by = float(self.data.qpos[self._finger_qpos].sum())
-        return 2.0 * (self._finger_offset - self._finger_half_width) - closed_by
+        left, right = self.data.qpos[self._finger_qpos]
+        return 2.0 * (self._finger_offset - self._finger_half_width) - float(left + right)
 
     def set_ball_pos(self, pos: np.ndarray) -> None:
         """Put the ball at rest at `pos` (no rotation)."""
