@@ -4,10 +4,16 @@ This module imports neither torch nor the store, so the web app can validate a r
 """
 
 from dataclasses import asdict, dataclass, fields, replace
-from typing import Any, Literal
+from typing import Any, Literal, get_args, get_origin, get_type_hints
 
 Algorithm = Literal["vice_raq", "vice", "raq", "naive_classifier", "sparse"]
 ALGORITHMS: tuple[str, ...] = ("vice_raq", "vice", "raq", "naive_classifier", "sparse")
+
+
+def _choice_fields() -> dict[str, tuple[Any, ...]]:
+    """Fields typed as Literal[...] and their allowed values."""
+    hints = get_type_hints(TrainConfig)
+    return {name: get_args(hint) for name, hint in hints.items() if get_origin(hint) is Literal}
 
 
 @dataclass
@@ -56,8 +62,12 @@ class TrainConfig:
     """Filters of each of the two 5x5 conv layers (8 in simulation, 32 on the real robot)."""
     hidden_dim: int = 256
     """Width of the two fully connected layers."""
+    encoder: Literal["paper", "strided"] = "strided"
+    """Conv net of every network: the paper's (5x5 convs + 2x2 max-pools) or 4x4 stride-2 convs (4x cheaper)."""
     shared_encoder: bool = True
     """One conv encoder for actor and critics, trained by the critic (DrQ / SAC-AE); False: one each."""
+    feature_dim: int = 50
+    """Shared encoder only: Linear + LayerNorm + tanh of the conv features to this size (SAC-AE, DrQ); 0: none."""
     augmentation: Literal["none", "random_shift"] = "random_shift"
     """Image augmentation for SAC updates: DrQ's random shift by up to 4 pixels (scaled to image size)."""
     precision: Literal["fp32", "bf16"] = "bf16"
@@ -124,7 +134,7 @@ class TrainConfig:
         for name in positive_ints:
             if getattr(self, name) < 1:
                 errors.append((name, "must be at least 1"))
-        for name in ("eval_episodes", "classifier_steps", "query_budget", "initial_random_steps"):
+        for name in ("eval_episodes", "classifier_steps", "query_budget", "initial_random_steps", "feature_dim"):
             if getattr(self, name) < 0:
                 errors.append((name, "must not be negative"))
         for name in ("actor_lr", "critic_lr", "alpha_lr", "classifier_lr", "initial_alpha"):
@@ -138,8 +148,9 @@ class TrainConfig:
             errors.append(("tau", "must be in (0, 1]"))
         if self.mixup_alpha < 0:
             errors.append(("mixup_alpha", "must not be negative"))
-        if self.algorithm not in ALGORITHMS:
-            errors.append(("algorithm", f"must be one of {', '.join(ALGORITHMS)}"))
+        for name, choices in _choice_fields().items():
+            if getattr(self, name) not in choices:
+                errors.append((name, f"must be one of {', '.join(map(str, choices))}"))
         if not 16 <= self.image_size <= 256:
             errors.append(("image_size", "must be between 16 and 256"))
         if not self.env_id.strip():
@@ -160,6 +171,6 @@ class TrainConfig:
 
     @classmethod
     def paper(cls, **overrides: Any) -> "TrainConfig":
-        """The paper's code as released: separate conv nets per network, no augmentation, fp32."""
-        faithful = cls(shared_encoder=False, augmentation="none", precision="fp32")
+        """The paper's code as released: its conv net, separate per network, no augmentation, fp32."""
+        faithful = cls(encoder="paper", shared_encoder=False, augmentation="none", precision="fp32")
         return replace(faithful, **overrides)

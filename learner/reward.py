@@ -51,7 +51,7 @@ class RewardModel:
         self.config = config
         self.rng = rng
         self.device = torch.device(config.device)
-        self.net = RewardClassifier(config.image_size, config.conv_filters, config.hidden_dim)
+        self.net = RewardClassifier(config.image_size, config.conv_filters, config.hidden_dim, config.encoder)
         self.net.to(self.device, memory_format=torch.channels_last)
         self.opt = torch.optim.Adam(self.net.parameters(), lr=config.classifier_lr)
         self.airl = config.algorithm in AIRL_ALGORITHMS

@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 
 from learner.config import TrainConfig
-from learner.networks import Actor, ConvEncoder, Critic, squashed_gaussian_sample, to_float
+from learner.networks import Actor, ConvEncoder, Critic, SharedEncoder, squashed_gaussian_sample, to_float
 
 
 class SACAgent:
@@ -28,15 +28,16 @@ class SACAgent:
         self.device = torch.device(config.device)
         self.action_dim = action_dim
         size, filters, hidden = config.image_size, config.conv_filters, config.hidden_dim
-        feature_dim = ConvEncoder(size, filters).output_dim
         if config.shared_encoder:
-            self.encoder: ConvEncoder | None = ConvEncoder(size, filters)
+            self.encoder: SharedEncoder | None = SharedEncoder(size, filters, config.encoder, config.feature_dim)
+            feature_dim = self.encoder.output_dim
             self.actor = Actor(feature_dim, action_dim, hidden, encoder=None)
             self.critic = Critic(feature_dim, action_dim, hidden, encoders=None)
         else:
             self.encoder = None
-            self.actor = Actor(feature_dim, action_dim, hidden, encoder=ConvEncoder(size, filters))
-            encoders = (ConvEncoder(size, filters), ConvEncoder(size, filters))
+            feature_dim = ConvEncoder(size, filters, config.encoder).output_dim
+            self.actor = Actor(feature_dim, action_dim, hidden, encoder=ConvEncoder(size, filters, config.encoder))
+            encoders = (ConvEncoder(size, filters, config.encoder), ConvEncoder(size, filters, config.encoder))
             self.critic = Critic(feature_dim, action_dim, hidden, encoders=encoders)
         for module in self.modules().values():
             module.to(self.device, memory_format=torch.channels_last)
