@@ -12,20 +12,6 @@ from app.store import Conflict, InvalidInput, NotFound, QueryStatus, RunStatus, 
 PNG = b"\x89PNG\r\n\x1a\nfake-but-opaque-bytes"
 
 
-@pytest.fixture
-def db_url(tmp_path: Path) -> str:
-    url = f"sqlite:///{tmp_path / 'store.sqlite3'}"
-    upgrade(url)
-    return url
-
-
-@pytest.fixture
-def store(db_url: str) -> Store:
-    store = Store(db_url)
-    yield store
-    store.dispose()
-
-
 def make_run(store: Store, **overrides) -> int:
     values = {"env_id": "VisualPusher-v0", "algorithm": "vice_raq", "config": {"query_every": 100}, "seed": 3}
     values.update(overrides)
@@ -187,11 +173,11 @@ def _claim_all(url: str, worker: str, barrier, results) -> None:  # type: ignore
     results.put((worker, claimed))
 
 
-def test_two_worker_processes_racing_never_take_the_same_run(db_url: str, store: Store) -> None:
+def test_two_worker_processes_racing_never_take_the_same_run(database_url: str, store: Store) -> None:
     run_ids = [make_run(store) for _ in range(30)]
     context = mp.get_context("spawn")
     barrier, results = context.Barrier(2), context.Queue()
-    workers = [context.Process(target=_claim_all, args=(db_url, name, barrier, results)) for name in ("a", "b")]
+    workers = [context.Process(target=_claim_all, args=(database_url, name, barrier, results)) for name in ("a", "b")]
     for worker in workers:
         worker.start()
     claims = dict(results.get(timeout=60) for _ in workers)
@@ -212,10 +198,12 @@ def _race_for_one(url: str, worker: str, barrier, results) -> None:  # type: ign
         barrier.wait()
 
 
-def test_exactly_one_of_two_racing_workers_wins_a_single_run(db_url: str, store: Store) -> None:
+def test_exactly_one_of_two_racing_workers_wins_a_single_run(database_url: str, store: Store) -> None:
     context = mp.get_context("spawn")
     barrier, results = context.Barrier(3), context.Queue()
-    workers = [context.Process(target=_race_for_one, args=(db_url, name, barrier, results)) for name in ("a", "b")]
+    workers = [
+        context.Process(target=_race_for_one, args=(database_url, name, barrier, results)) for name in ("a", "b")
+    ]
     for worker in workers:
         worker.start()
     for _round in range(10):
@@ -241,11 +229,13 @@ def _write_a_lot(url: str, run_id: int, label: str, count: int, errors) -> None:
         errors.put(f"{label}: {error!r}")
 
 
-def test_two_processes_write_one_sqlite_file_at_once_without_database_is_locked(db_url: str, store: Store) -> None:
+def test_two_processes_write_one_sqlite_file_at_once_without_database_is_locked(
+    database_url: str, store: Store
+) -> None:
     run_id = make_run(store)
     context = mp.get_context("spawn")
     errors = context.Queue()
-    writers = [context.Process(target=_write_a_lot, args=(db_url, run_id, name, 300, errors)) for name in "xy"]
+    writers = [context.Process(target=_write_a_lot, args=(database_url, run_id, name, 300, errors)) for name in "xy"]
     for writer in writers:
         writer.start()
     for writer in writers:

@@ -71,40 +71,26 @@ def validate_run_config(body: RunCreate) -> TrainConfig:
         raise HTTPException(status_code=422, detail=detail) from None
 
 
+def _goal_set_error(message: str) -> HTTPException:
+    return HTTPException(status_code=422, detail=[_field_error(["body", "goal_set_id"], "goal_set_id", message)])
+
+
 def check_goal_set(store: Store, *, algorithm: str, goal_set_id: int | None) -> None:
     """Every algorithm but sparse learns its reward from goal examples: it needs a set with at least one."""
     if goal_set_id is None:
         if algorithm in ALGORITHMS_WITHOUT_GOALS:
             return
-        raise HTTPException(
-            status_code=422,
-            detail=[
-                _field_error(
-                    ["body", "goal_set_id"],
-                    "goal_set_id",
-                    f"algorithm {algorithm!r} learns its reward from goal photos: choose a goal set "
-                    "with at least one example (only 'sparse' runs without one)",
-                )
-            ],
+        raise _goal_set_error(
+            f"algorithm {algorithm!r} learns its reward from goal photos: choose a goal set "
+            "with at least one example (only 'sparse' runs without one)"
         )
     try:
         store.get_goal_set(goal_set_id=goal_set_id)
     except NotFound:
-        raise HTTPException(
-            status_code=422,
-            detail=[_field_error(["body", "goal_set_id"], "goal_set_id", f"goal set {goal_set_id} not found")],
-        ) from None
+        raise _goal_set_error(f"goal set {goal_set_id} not found") from None
     if algorithm not in ALGORITHMS_WITHOUT_GOALS and not store.list_goal_examples(goal_set_id=goal_set_id):
-        raise HTTPException(
-            status_code=422,
-            detail=[
-                _field_error(
-                    ["body", "goal_set_id"],
-                    "goal_set_id",
-                    f"goal set {goal_set_id} has no goal photos yet; upload at least one before starting "
-                    f"a {algorithm!r} run",
-                )
-            ],
+        raise _goal_set_error(
+            f"goal set {goal_set_id} has no goal photos yet; upload at least one before starting a {algorithm!r} run"
         )
 
 
