@@ -4,8 +4,9 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 # Debian packages: Mesa for headless MuJoCo rendering (EGL and OSMesa), Chromium for browser tests,
-# docker-compose to check docker-compose.yml (there is no Docker engine to run it here).
-SYSTEM_PACKAGES := libegl1 libegl-mesa0 libgl1 libgles2 libosmesa6 chromium docker-compose
+# docker-compose to check docker-compose.yml (there is no Docker engine to run it here), PostgreSQL for
+# the tests of the store on PostgreSQL.
+SYSTEM_PACKAGES := libegl1 libegl-mesa0 libgl1 libgles2 libosmesa6 chromium docker-compose postgresql
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 

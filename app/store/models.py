@@ -35,7 +35,7 @@ class UTCDateTime(TypeDecorator[datetime]):
     cache_ok = True
 
     def process_bind_param(self, value: datetime | None, dialect: Any) -> datetime | None:
-        if value is not None and value.tzinfo is not None:
+        if value is not None and value.tzinfo is not None and dialect.name == "sqlite":
             value = value.astimezone(UTC).replace(tzinfo=None)
         return value
 

@@ -1,0 +1,122 @@
+"""The same store on PostgreSQL (DATABASE_URL): a real server started for the tests on 127.0.0.1.
+
+`make test` installs Debian's postgresql package; initdb refuses to run as root, so as root the server runs
+as the `postgres` user that the package creates.
+"""
+
+import glob
+import multiprocessing as mp
+import os
+import shutil
+import socket
+import subprocess
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from sqlalchemy import inspect
+
+from app.migrate import downgrade, upgrade
+from app.store import Conflict, Store
+
+PNG = b"\x89PNG\r\n\x1a\nquery"
+
+
+def postgres_binary(name: str) -> str:
+    found = sorted(glob.glob(f"/usr/lib/postgresql/*/bin/{name}"))
+    assert found, f"{name} not found: `make test` installs Debian's postgresql package"
+    return found[-1]
+
+
+def as_server_user(command: list[str]) -> list[str]:
+    return ["runuser", "-u", "postgres", "--", *command] if os.geteuid() == 0 else command
+
+
+@pytest.fixture(scope="module")
+def postgres_url() -> Iterator[str]:
+    base = Path(tempfile.mkdtemp(prefix="raq-pg-"))
+    data, sockets = base / "data", base / "sockets"
+    sockets.mkdir()
+    if os.geteuid() == 0:
+        shutil.chown(base, "postgres")
+        shutil.chown(sockets, "postgres")
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    run = {"check": True, "capture_output": True, "text": True}
+    subprocess.run(as_server_user([postgres_binary("initdb"), "-D", str(data), "-U", "raq", "--auth=trust"]), **run)
+    options = f"-p {port} -k {sockets} -c listen_addresses=127.0.0.1 -c fsync=off"
+    pg_ctl = postgres_binary("pg_ctl")
+    subprocess.run(
+        as_server_user([pg_ctl, "-D", str(data), "-o", options, "-l", str(base / "log"), "-w", "start"]), **run
+    )
+    try:
+        subprocess.run(
+            as_server_user([postgres_binary("createdb"), "-h", "127.0.0.1", "-p", str(port), "-U", "raq", "raq"]), **run
+        )
+        yield f"postgresql+psycopg://raq@127.0.0.1:{port}/raq"
+    finally:
+        subprocess.run(as_server_user([pg_ctl, "-D", str(data), "-m", "fast", "-w", "stop"]), capture_output=True)
+        shutil.rmtree(base, ignore_errors=True)
+
+
+def test_migrations_run_up_and_down_on_postgresql(postgres_url: str) -> None:
+    upgrade(postgres_url)
+    store = Store(postgres_url)
+    assert {"runs", "queries", "goal_examples", "metrics"} <= set(inspect(store.engine).get_table_names())
+    store.dispose()
+    downgrade(postgres_url, "base")
+    store = Store(postgres_url)
+    assert "runs" not in inspect(store.engine).get_table_names()
+    store.dispose()
+    upgrade(postgres_url)
+
+
+def _claim_all(url: str, worker: str, barrier, results) -> None:  # type: ignore[no-untyped-def]
+    store = Store(url)
+    barrier.wait()
+    claimed = []
+    while (run := store.claim_next_run(worker=worker)) is not None:
+        claimed.append(run.id)
+    results.put(claimed)
+
+
+def test_the_store_works_on_postgresql(postgres_url: str) -> None:
+    upgrade(postgres_url)
+    store = Store(postgres_url)
+    goal_set = store.create_goal_set(name="pg goals")
+    example = store.add_goal_example(
+        goal_set_id=goal_set.id, filename="g.png", original=b"orig", original_media_type="image/png",
+        width=4, height=4, model_png=b"model", display_png=b"display",
+    )  # fmt: skip
+    assert store.goal_example_image(example_id=example.id, kind="model") == b"model"
+    run_ids = [
+        store.create_run(env_id="VisualPusher-v0", algorithm="vice_raq", config={"seed": 1}, goal_set_id=goal_set.id).id
+        for _ in range(20)
+    ]
+    context = mp.get_context("spawn")
+    barrier, results = context.Barrier(2), context.Queue()
+    workers = [context.Process(target=_claim_all, args=(postgres_url, name, barrier, results)) for name in "ab"]
+    for worker in workers:
+        worker.start()
+    claims = [results.get(timeout=60) for _ in workers]
+    for worker in workers:
+        worker.join(timeout=30)
+    assert sorted(claims[0] + claims[1]) == run_ids and not set(claims[0]) & set(claims[1])
+
+    run_id = run_ids[0]
+    query = store.post_query(
+        run_id=run_id, env_step=5, model_png=PNG, display_png=PNG, score=1.5, info={"success": 1.0},
+        ground_truth_success=1.0,
+    )  # fmt: skip
+    store.answer_query(query_id=query.id, success=True, labeler="pg")
+    with pytest.raises(Conflict):
+        store.answer_query(query_id=query.id, success=False)
+    assert [a.query_id for a in store.new_answers(run_id=run_id, since_seq=0)] == [query.id]
+    assert store.query_image(query_id=query.id, resolution="model") == PNG
+    store.record_metrics(run_id=run_id, step=1000, values={"eval/success_rate": 0.5, "critic/loss": float("nan")})
+    assert store.latest_metric(run_id=run_id, name="eval/success_rate") == 0.5
+    assert store.heartbeat(run_id=run_id, worker=store.get_run(run_id=run_id).worker, step=7) is True
+    assert store.get_run(run_id=run_id).heartbeat_at.tzinfo is not None
+    store.dispose()
