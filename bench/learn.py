@@ -77,7 +77,12 @@ def first_step_reaching(rows: list[dict[str, float]], name: str, threshold: floa
     return next((int(row["step"]) for row in rows if row.get(name, -1) >= threshold), None)
 
 
+def _interrupt(signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def main() -> int:
+    signal.signal(signal.SIGTERM, _interrupt)  # background jobs ignore SIGINT: let SIGTERM stop the run cleanly
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", choices=sorted(TASKS), default="pusher")
     parser.add_argument("--algorithm", default="vice_raq")

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from app.store import Run, RunStatus, Store
+from app.store import QueryStatus, Run, RunStatus, Store
 from learner.checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
 from learner.config import TrainConfig
 from learner.envs import (
@@ -104,6 +104,9 @@ class Trainer:
         self.total_updates = 0
         self.answer_cursor = 0
         self.queries_asked = 0
+        # every answered query's image and answer, by query id: what the page shows as the classifier's
+        # agreement with the person (rebuilt from the store on resume)
+        self.answered: dict[int, tuple[np.ndarray, bool]] = {}
         self.naive_trained = False
         self.obs = np.zeros((size, size, 3), dtype=np.uint8)
         self.obs_slot = 0
@@ -275,9 +278,25 @@ class Trainer:
         recent = self.replay.frames_since(self.replay.frames_added - 256)
         metrics["reward/mean_logit_recent"] = float(model.logits(recent).mean())
         metrics["reward/positives"] = float(len(model.goals) + len(model.answered_positives))
+        metrics.update(self._agreement_with_answers())
         self.store.record_metrics(run_id=self.run_id, step=self.step, values=metrics)
         if self.selector is not None:
             self.selector.rescore(model.logits)
+
+    def _agreement_with_answers(self) -> dict[str, float]:
+        """What f_psi now says about the answered queries (exploitation shows as high f_psi on 'no' answers):
+        mean f_psi on yes and on no answers, and the fraction on the answer's side of f_psi = 0."""
+        if not self.answered or self.reward_model is None:
+            return {}
+        images = np.stack([image for image, _ in self.answered.values()])
+        labels = np.array([answer for _, answer in self.answered.values()])
+        logits = self.reward_model.logits(images)
+        metrics = {"reward/agreement_with_answers": float(np.mean((logits > 0) == labels))}
+        if labels.any():
+            metrics["reward/mean_logit_answered_yes"] = float(logits[labels].mean())
+        if not labels.all():
+            metrics["reward/mean_logit_answered_no"] = float(logits[~labels].mean())
+        return metrics
 
     # ================================================================== queries and answers
     def _observe(self, image: np.ndarray, info: dict[str, Any], success: float | None) -> None:
@@ -322,6 +341,7 @@ class Trainer:
         yes = no = 0
         for answer in answers:
             image = decode_image(answer.model_png, self.config.image_size)
+            self.answered[answer.query_id] = (image, answer.success)
             if answer.success:
                 model.add_positive(image)
                 yes += 1
@@ -344,7 +364,12 @@ class Trainer:
         queries = self.store.list_queries(run_id=self.run_id, limit=1_000_000)
         self.queries_asked = len(queries)
         size = self.config.image_size
-        keys = {digest(decode_image(self.store.query_image(query_id=q.id, resolution="model"), size)) for q in queries}
+        keys = set()
+        for query in queries:
+            image = decode_image(self.store.query_image(query_id=query.id, resolution="model"), size)
+            keys.add(digest(image))
+            if query.status == QueryStatus.ANSWERED and query.used_at is not None:
+                self.answered[query.id] = (image, bool(query.answer))
         self.selector.mark_asked(keys)
 
     # ================================================================== evaluation and metrics

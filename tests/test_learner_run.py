@@ -101,9 +101,11 @@ def test_vice_raq_run_end_to_end_with_answers_arriving(setup: tuple[Settings, St
         "train/episode_return", "critic/loss", "actor/loss", "alpha/value", "reward/loss", "reward/acc_goal",
         "reward/acc_replay", "reward/mean_logit_goal", "reward/mean_logit_recent", "queries/asked",
         "queries/answered", "queries/yes", "perf/steps_per_second", "perf/updates_per_second", "perf/eta_seconds",
-        "eval/success_rate", "eval/return",
+        "eval/success_rate", "eval/return", "reward/agreement_with_answers",
     }  # fmt: skip
     assert expected <= names, expected - names
+    agreement = store.metrics(run_id=run_id, names=["reward/agreement_with_answers"])
+    assert all(0.0 <= metric.value <= 1.0 for metric in agreement)
     queries = store.list_queries(run_id=run_id)
     assert len(queries) == config.query_budget
     assert all(q.status == "answered" and q.used_at is not None for q in queries[1:])  # all but maybe the last
