@@ -3,20 +3,21 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-# Debian packages: Mesa for headless MuJoCo rendering (EGL and OSMesa), Chromium for browser tests,
-# docker-compose to check docker-compose.yml (there is no Docker engine to run it here), PostgreSQL for
-# the tests of the store on PostgreSQL.
-SYSTEM_PACKAGES := libegl1 libegl-mesa0 libgl1 libgles2 libosmesa6 chromium docker-compose postgresql
+# Debian packages. To run: Mesa for headless MuJoCo rendering (EGL and OSMesa). Only for the tests:
+# Chromium for browser tests, docker-compose to check docker-compose.yml (there is no Docker engine to run
+# it here), PostgreSQL for the tests of the store on PostgreSQL.
+RUN_PACKAGES := libegl1 libegl-mesa0 libgl1 libgles2 libosmesa6
+TEST_PACKAGES := chromium docker-compose postgresql
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 
-.PHONY: run test lint install system-packages bench clean
+.PHONY: run test lint install run-packages test-packages bench clean
 
 run: install
 	$(BIN)/raq migrate
 	$(BIN)/raq up --demo
 
-test: install
+test: test-packages install
 	$(BIN)/ruff check app learner sim tests bench
 	@rm -f $(VENV)/pytest-exit-code
 	$(BIN)/python -m pytest $(PYTEST_ARGS); code=$$?; echo $$code > $(VENV)/pytest-exit-code; exit $$code
@@ -24,7 +25,7 @@ test: install
 lint: install
 	$(BIN)/ruff check app learner sim tests bench
 
-install: system-packages $(STAMP)
+install: run-packages $(STAMP)
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -32,8 +33,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-system-packages:
-	@missing=""; for p in $(SYSTEM_PACKAGES); do \
+# $(call require-packages,LIST): install the missing ones with apt-get as root; otherwise print the exact
+# apt-get command and fail.
+define require-packages
+	@missing=""; for p in $(1); do \
 	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "install ok installed" || missing="$$missing $$p"; \
 	done; \
 	if [ -n "$$missing" ]; then \
@@ -45,6 +48,13 @@ system-packages:
 	    echo "Install them with: sudo apt-get install$$missing"; exit 1; \
 	  fi; \
 	fi
+endef
+
+run-packages:
+	$(call require-packages,$(RUN_PACKAGES))
+
+test-packages:  # what `make run` needs and what only the tests need, in one check
+	$(call require-packages,$(RUN_PACKAGES) $(TEST_PACKAGES))
 
 bench: install
 	$(BIN)/python bench/env_speed.py

@@ -3,6 +3,7 @@
 import hashlib
 import hmac
 from typing import Annotated
+from urllib.parse import urlsplit
 
 from fastapi import Depends, HTTPException, Request, status
 
@@ -41,7 +42,56 @@ def is_authorised(request: Request, settings: Settings) -> bool:
     return bool(cookie) and hmac.compare_digest(cookie.encode(), session_value(token).encode())
 
 
+DEFAULT_PORTS = {"http": 80, "https": 443}
+CROSS_SITE_DETAIL = (
+    "refused a change sent from another web site ({reason}); "
+    "use this server's own pages, or a program that sends no Origin header (curl, httpx, raq oracle)"
+)
+
+
+def _split_host_port(netloc: str, default_port: int | None) -> tuple[str, int | None] | None:
+    """'Host:port' (or '[::1]:port') as (lower-case host, port); None when it cannot be read."""
+    try:
+        parts = urlsplit(f"//{netloc}")
+        return (parts.hostname or "").lower(), parts.port or default_port
+    except ValueError:
+        return None
+
+
+def cross_site_reason(request: Request) -> str | None:
+    """Why this request looks like it was sent by a page of another site, or None when it does not.
+
+    Browsers label every request they send: `Sec-Fetch-Site` (modern browsers) and `Origin` (on every
+    POST/PUT/DELETE, also on same-origin ones). A write whose Origin is not this server's own Host is
+    refused; a request with neither header (curl, httpx, the oracle) is not a browser's and passes.
+    """
+    if request.headers.get("sec-fetch-site", "").strip().lower() == "cross-site":
+        return "Sec-Fetch-Site: cross-site"
+    origin = request.headers.get("origin")
+    if origin is None:
+        return None
+    parts = urlsplit(origin.strip())
+    if parts.scheme not in DEFAULT_PORTS or not parts.netloc:
+        return f"Origin {origin!r}"  # 'null' (sandboxed frames, file: pages) or junk
+    default_port = DEFAULT_PORTS[parts.scheme]
+    origin_host = _split_host_port(parts.netloc, default_port)
+    host_header = request.headers.get("host", "")
+    host = _split_host_port(host_header, default_port)
+    if origin_host is None or host is None or not host[0] or origin_host != host:
+        return f"Origin {origin!r} is not this server's Host {host_header!r}"
+    return None
+
+
+def require_same_origin(request: Request) -> None:
+    """403 for a write a browser sent on behalf of another site (CSRF, DNS rebinding)."""
+    reason = cross_site_reason(request)
+    if reason is not None:
+        raise HTTPException(status_code=status.HTTP_403_FORBIDDEN, detail=CROSS_SITE_DETAIL.format(reason=reason))
+
+
 def require_write_access(request: Request, settings: SettingsDep) -> None:
+    """Writes: first refuse cross-site browser requests (with or without a token), then check the token."""
+    require_same_origin(request)
     if not is_authorised(request, settings):
         raise HTTPException(
             status_code=status.HTTP_401_UNAUTHORIZED,
@@ -51,3 +101,4 @@ def require_write_access(request: Request, settings: SettingsDep) -> None:
 
 
 WriteAuth = Annotated[None, Depends(require_write_access)]
+SameOrigin = Annotated[None, Depends(require_same_origin)]

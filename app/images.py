@@ -1,7 +1,9 @@
 """Uploaded goal photos: decode and check them, then make the model's and the display's PNG copies.
 
-Only PNG, JPEG and WebP are accepted. Every check happens before anything is stored, and every failure
-is an `ImageRejected` whose message says what was wrong with which file.
+Only PNG, JPEG and WebP are accepted. A JPEG with an MPF segment (phone portrait or HDR photos; Pillow
+calls it "MPO") is a JPEG: its first frame, the picture itself, is used and it is stored as image/jpeg.
+Every check happens before anything is stored, and every failure is an `ImageRejected` whose message
+says what was wrong with which file.
 """
 
 import io
@@ -10,7 +12,12 @@ from dataclasses import dataclass
 
 from PIL import Image, ImageOps, UnidentifiedImageError
 
-ACCEPTED_FORMATS: dict[str, str] = {"PNG": "image/png", "JPEG": "image/jpeg", "WEBP": "image/webp"}
+ACCEPTED_FORMATS: dict[str, str] = {
+    "PNG": "image/png",
+    "JPEG": "image/jpeg",
+    "MPO": "image/jpeg",  # JPEG + MPF (Samsung/Android portrait, iOS HDR); every viewer shows the first frame
+    "WEBP": "image/webp",
+}
 DISPLAY_MAX_SIDE = 256
 
 
@@ -63,7 +70,7 @@ def decode_upload(data: bytes, *, max_bytes: int, max_pixels: int) -> Image.Imag
                 )
             if width < 1 or height < 1:
                 raise ImageRejected("the image has no pixels")
-            image.load()
+            image.load()  # an MPO opens on its first frame, the photo; the others are never decoded
             image = ImageOps.exif_transpose(image)
     except ImageRejected:
         raise

@@ -104,8 +104,9 @@ class ReplayBuffer:
         return self.frames[self.next_slot[indices]]
 
     def frames_since(self, first_frame: int) -> np.ndarray:
-        """All frames added since the absolute frame number `first_frame` (still in the ring)."""
-        first = max(first_frame, self.frames_added - self.frame_capacity)
+        """All frames added since the absolute frame number `first_frame` (still in the ring); a negative
+        `first_frame` (fewer frames than asked for) means from the first frame."""
+        first = max(first_frame, 0, self.frames_added - self.frame_capacity)
         slots = np.arange(first, self.frames_added) % self.frame_capacity
         return self.frames[slots]
 

@@ -10,6 +10,7 @@ outcome of the step. Episodes end on the time limit only (no terminal on success
 """
 
 import contextlib
+import io
 import json
 import logging
 import threading
@@ -21,6 +22,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from PIL import Image, ImageOps
 
 from app.store import QueryStatus, Run, RunStatus, Store
 from learner.checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
@@ -108,6 +110,8 @@ class Trainer:
         # agreement with the person (rebuilt from the store on resume)
         self.answered: dict[int, tuple[np.ndarray, bool]] = {}
         self.naive_trained = False
+        self.evaluated_step = -1  # the step of the last completed evaluation
+        self.step_known = False  # until the checkpoint is read, heartbeats leave the run's stored step alone
         self.obs = np.zeros((size, size, 3), dtype=np.uint8)
         self.obs_slot = 0
         self.episode_len = 0
@@ -124,18 +128,38 @@ class Trainer:
     def train(self) -> str:
         cfg = self.config
         self._event(f"learner {self.worker} setting up: {cfg.algorithm} on {cfg.env_id}, {cfg.total_steps} steps")
+        stored_step = int(self.store.get_run(run_id=self.run_id).step or 0)
+        # each setup phase can take long (a large checkpoint): beat after each so no one reclaims the run
         self._load_goals()
+        self._tick()
         state = load_checkpoint(self.checkpoint_file)
+        self._tick()
         if state is not None:
             self._restore(state)
+        self.step_known = True
+        self._tick()
         self._sync_queries()
         if not self._beat(status=RunStatus.TRAINING):
             return self._stop_or_lost()
         if state is not None:
-            self._event(f"resumed from checkpoint at step {self.step}")
-        elif cfg.initial_random_steps:
-            self._event(f"warm-up started: {cfg.initial_random_steps} uniformly random steps")
+            dropped = self.store.delete_metrics_after(run_id=self.run_id, step=self.step)
+            self._event(
+                f"resumed from checkpoint at step {self.step}; {dropped} metrics recorded after it were dropped"
+            )
+        else:
+            if stored_step > 0:
+                dropped = self.store.delete_metrics_after(run_id=self.run_id, step=0)
+                self._event(
+                    f"the run had reached step {stored_step} but no checkpoint was found at {self.checkpoint_file}: "
+                    f"training restarts from step 0 ({dropped} earlier metrics dropped). Checkpoints must be on a "
+                    "data dir shared by all learners, or a run that moves to another host starts over.",
+                    level="warning",
+                )
+            if cfg.initial_random_steps:
+                self._event(f"warm-up started: {cfg.initial_random_steps} uniformly random steps")
         self._begin_episode(seed=None if state is not None else cfg.seed)
+        if state is not None:
+            self._redo_interrupted_work()
         self.log_time, self.log_step, self.log_updates = time.monotonic(), self.step, self.total_updates
         while self.step < cfg.total_steps:
             outcome = self._check_control()
@@ -144,6 +168,15 @@ class Trainer:
             self._env_step()
             self._after_step()
         return self._finish()
+
+    def _redo_interrupted_work(self) -> None:
+        """After a resume: what an interrupt cut short before the checkpoint (the naive classifier's one-off
+        training, the evaluation of the checkpoint's step) is done now."""
+        cfg = self.config
+        if cfg.algorithm == "naive_classifier" and not self.naive_trained and self.step >= cfg.epoch_steps:
+            self._end_of_epoch()
+        if 0 < self.step < cfg.total_steps and self.step % cfg.eval_every == 0 and self.evaluated_step != self.step:
+            self._evaluate()
 
     def close(self) -> None:
         for env in (self.env, self.eval_env):
@@ -197,13 +230,18 @@ class Trainer:
             self._evaluate()
         if step % cfg.log_every == 0:
             self._log()
-        if step % cfg.checkpoint_every == 0 and step < cfg.total_steps:
-            self._checkpoint()
+        if step % cfg.checkpoint_every == 0 and step < cfg.total_steps and not self.interrupt.is_set():
+            self._checkpoint()  # (interrupted: the loop checkpoints at once)
         self._tick()
 
     def _finish(self) -> str:
-        if self.step % self.config.eval_every != 0:
+        if self.evaluated_step != self.step:
             self._evaluate()
+        if self.interrupt.is_set() and self.evaluated_step != self.step:  # the final evaluation was cut short:
+            # checkpoint and requeue; the resumed learner (at total_steps) evaluates and finishes
+            outcome = self._check_control()
+            assert outcome is not None
+            return outcome
         if self.step % self.config.log_every != 0:
             self._log()
         self._checkpoint()
@@ -244,10 +282,12 @@ class Trainer:
         if cfg.algorithm == "naive_classifier":
             if self.naive_trained:
                 return
-            self.naive_trained = True
             self._event(f"training the naive classifier once: {cfg.naive_classifier_steps} steps, then frozen")
-            self._train_classifier(cfg.naive_classifier_steps)
-            self._event("naive classifier trained")
+            if self._train_classifier(cfg.naive_classifier_steps):
+                self.naive_trained = True
+                self._event("naive classifier trained")
+            else:  # not marked trained: the checkpoint says so, and the resumed learner trains it again
+                self._event("naive classifier training interrupted; it is redone after the resume")
             return
         self._train_classifier(cfg.classifier_steps)
 
@@ -259,12 +299,15 @@ class Trainer:
             frames = frames[keep]
         return frames.copy()
 
-    def _train_classifier(self, steps: int) -> None:
+    def _train_classifier(self, steps: int) -> bool:
+        """`steps` classifier steps; False when an interrupt (Ctrl-C, SIGTERM) cut them short."""
         model, cfg = self.reward_model, self.config
         assert model is not None
         policy = self.agent.policy if cfg.algorithm in AIRL_ALGORITHMS else None
         metrics: dict[str, float] = {}
         for i in range(steps):
+            if self.interrupt.is_set():
+                return False
             positives = model.sample_positives(cfg.classifier_batch_size)
             if cfg.algorithm in AIRL_ALGORITHMS:  # negatives: uniform replay samples
                 negatives = self.replay.sample_next_frames(self.rng, cfg.classifier_batch_size)
@@ -274,7 +317,7 @@ class Trainer:
             if i % 50 == 49:
                 self._tick()
         if not metrics:
-            return
+            return True
         recent = self.replay.frames_since(self.replay.frames_added - 256)
         metrics["reward/mean_logit_recent"] = float(model.logits(recent).mean())
         metrics["reward/positives"] = float(len(model.goals) + len(model.answered_positives))
@@ -282,6 +325,7 @@ class Trainer:
         self.store.record_metrics(run_id=self.run_id, step=self.step, values=metrics)
         if self.selector is not None:
             self.selector.rescore(model.logits)
+        return True
 
     def _agreement_with_answers(self) -> dict[str, float]:
         """What f_psi now says about the answered queries (exploitation shows as high f_psi on 'no' answers):
@@ -366,6 +410,7 @@ class Trainer:
         size = self.config.image_size
         keys = set()
         for query in queries:
+            self._tick()
             image = decode_image(self.store.query_image(query_id=query.id, resolution="model"), size)
             keys.add(digest(image))
             if query.status == QueryStatus.ANSWERED and query.used_at is not None:
@@ -375,13 +420,17 @@ class Trainer:
     # ================================================================== evaluation and metrics
     def _evaluate(self) -> None:
         """eval_episodes deterministic episodes. eval/return is the env's own reward summed; with a classifier,
-        eval/classifier_return sums f_psi(s'); eval/success_rate: success of each episode's final state."""
+        eval/classifier_return sums f_psi(s'); eval/success_rate: success of each episode's final state.
+        An interrupt stops it without recording anything."""
         cfg = self.config
         if cfg.eval_episodes == 0:
+            self.evaluated_step = self.step
             return
         returns, classifier_returns, successes, frames = [], [], [], []
         for episode in range(cfg.eval_episodes):
             total, next_frames, success, episode_frames = self._eval_episode(episode, record=episode == 0)
+            if self.interrupt.is_set():
+                return
             returns.append(total)
             successes.append(success)
             frames = frames or episode_frames
@@ -401,6 +450,7 @@ class Trainer:
         )  # fmt: skip
         rate = f", success rate {values['eval/success_rate']:.2f}" if "eval/success_rate" in values else ""
         self._event(f"evaluation at step {self.step}: return {values['eval/return']:.2f}{rate}")
+        self.evaluated_step = self.step
 
     def _eval_episode(self, episode: int, record: bool) -> tuple[float, list[np.ndarray], float | None, list]:
         cfg = self.config
@@ -409,6 +459,8 @@ class Trainer:
         frames = [display_image(self.eval_env, cfg.rollout_size, obs)] if record else []
         total, next_frames, success = 0.0, [], success_of(info)
         for _ in range(cfg.episode_steps):
+            if self.interrupt.is_set():
+                break
             action = self.agent.act(obs, deterministic=True)
             raw, reward, terminated, truncated, info = self.eval_env.step(scale_action(action, self.action_space))
             obs = model_image(raw, cfg.image_size)
@@ -449,7 +501,8 @@ class Trainer:
     # ================================================================== control: heartbeat, stop, interrupt
     def _beat(self, status: str | None = None) -> bool:
         self.last_beat = time.monotonic()
-        return self.store.heartbeat(run_id=self.run_id, worker=self.worker, step=self.step, status=status)
+        step = self.step if self.step_known else None
+        return self.store.heartbeat(run_id=self.run_id, worker=self.worker, step=step, status=status)
 
     def _tick(self) -> None:
         """Heartbeat when one is due (also inside long steps); a refusal is acted on at the next step."""
@@ -482,7 +535,8 @@ class Trainer:
 
     def _event(self, message: str, level: str = "info") -> None:
         """A progress message for the UI (the run's events) and the learner's console."""
-        logger.log(logging.ERROR if level == "error" else logging.INFO, "run %s: %s", self.run_id, message)
+        levels = {"error": logging.ERROR, "warning": logging.WARNING}
+        logger.log(levels.get(level, logging.INFO), "run %s: %s", self.run_id, message)
         self.store.record_event(run_id=self.run_id, message=message, level=level)
 
     # ================================================================== checkpoints
@@ -501,6 +555,7 @@ class Trainer:
             "total_updates": self.total_updates,
             "answer_cursor": self.answer_cursor,
             "naive_trained": self.naive_trained,
+            "evaluated_step": self.evaluated_step,
             "agent": self.agent.state_dict(),
             "reward_model": self.reward_model.state_dict() if self.reward_model is not None else None,
             "selector": self.selector.state_dict() if self.selector is not None else None,
@@ -508,6 +563,7 @@ class Trainer:
             "rng": {
                 "numpy": self.rng.bit_generator.state,
                 "torch": torch.get_rng_state(),
+                "cuda": _cuda_rng_states(self.agent.device),
                 "env": _env_rng_state(self.env),
             },
         }
@@ -517,6 +573,7 @@ class Trainer:
             raise ValueError(f"checkpoint {self.checkpoint_file} has an unknown version {state.get('version')}")
         self.step, self.total_updates = int(state["step"]), int(state["total_updates"])
         self.answer_cursor, self.naive_trained = int(state["answer_cursor"]), bool(state["naive_trained"])
+        self.evaluated_step = int(state.get("evaluated_step", self.step))
         self.agent.load_state_dict(state["agent"])
         if self.reward_model is not None:
             self.reward_model.load_state_dict(state["reward_model"])
@@ -525,6 +582,10 @@ class Trainer:
         self.replay.load_state_dict(state["replay"])
         self.rng.bit_generator.state = state["rng"]["numpy"]
         torch.set_rng_state(state["rng"]["torch"])
+        cuda = state["rng"].get("cuda")
+        # (another host may have another number of GPUs: then each keeps its own streams)
+        if cuda is not None and torch.cuda.is_available() and len(cuda) == torch.cuda.device_count():
+            torch.cuda.set_rng_state_all(cuda)
         if state["rng"]["env"] is not None:
             self.env.reset(seed=self.config.seed)  # creates the env's generator, then continue its stream
             self.env.unwrapped.np_random.bit_generator.state = state["rng"]["env"]
@@ -538,8 +599,47 @@ class Trainer:
         goals = self.store.goal_images(goal_set_id=self.goal_set_id)
         if not goals:
             raise ValueError(f"goal set {self.goal_set_id} has no goal examples")
-        self.reward_model.goals = np.stack([decode_image(g.model_png, self.config.image_size) for g in goals])
-        self._event(f"loaded {len(goals)} goal examples")
+        size = self.config.image_size
+        images, remade = [], 0
+        for goal in goals:
+            image = decode_image_at_size(goal.model_png)
+            if image.shape[:2] != (size, size):  # the goal set's model size is not the run's: remake from original
+                image = model_copy(goal.original, size)
+                remade += 1
+            images.append(image)
+        self.reward_model.goals = np.stack(images)
+        note = f" ({remade} remade at {size}x{size} px from their originals)" if remade else ""
+        self._event(f"loaded {len(goals)} goal examples{note}")
+
+
+def decode_image_at_size(data: bytes) -> np.ndarray:
+    """PNG bytes -> uint8 HWC RGB at the size stored."""
+    with Image.open(io.BytesIO(data)) as image:
+        return np.array(image.convert("RGB"))
+
+
+def model_copy(original: bytes, size: int) -> np.ndarray:
+    """A goal example's model view made from its uploaded original the way the web app makes it (app/images.py
+    to_png): upright, transparency flattened onto white, centre-cropped to a square, LANCZOS (area) resize."""
+    with Image.open(io.BytesIO(original)) as opened:
+        opened.load()
+        image = ImageOps.exif_transpose(opened)
+    if image.mode in ("RGBA", "LA") or (image.mode == "P" and "transparency" in image.info):
+        rgba = image.convert("RGBA")
+        background = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+        image = Image.alpha_composite(background, rgba)
+    image = image.convert("RGB")
+    width, height = image.size
+    side = min(width, height)
+    left, top = (width - side) // 2, (height - side) // 2
+    square = image.crop((left, top, left + side, top + side))
+    return np.array(square.resize((size, size), Image.Resampling.LANCZOS, reducing_gap=3.0))
+
+
+def _cuda_rng_states(device: torch.device) -> list[torch.Tensor] | None:
+    if device.type == "cuda" and torch.cuda.is_available():
+        return torch.cuda.get_rng_state_all()
+    return None
 
 
 def _env_rng_state(env: Any) -> dict[str, Any] | None:

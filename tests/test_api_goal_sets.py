@@ -173,3 +173,80 @@ def test_image_routes_and_deletes(client: TestClient, make_image: Callable[..., 
     assert client.delete(f"/api/goal-sets/{goal_set['id']}").status_code == 204
     assert client.get(f"/api/goal-sets/{goal_set['id']}").status_code == 404
     assert client.delete(f"/api/goal-sets/{goal_set['id']}").status_code == 404
+
+
+def _mpo_bytes(first: tuple[int, int, int], second: tuple[int, int, int], size: tuple[int, int] = (64, 48)) -> bytes:
+    """A JPEG with an MPF segment and two frames, as phones save portrait and HDR photos."""
+    buffer = io.BytesIO()
+    Image.new("RGB", size, first).save(buffer, "MPO", save_all=True, append_images=[Image.new("RGB", size, second)])
+    return buffer.getvalue()
+
+
+def test_phone_mpo_jpegs_are_accepted_as_jpeg(client: TestClient) -> None:
+    data = _mpo_bytes((220, 30, 30), (30, 30, 220))
+    with Image.open(io.BytesIO(data)) as opened:
+        assert opened.format == "MPO" and opened.n_frames == 2  # what Pillow makes of such a phone photo
+    assert decode_upload(data, max_bytes=10**7, max_pixels=10**7).size == (64, 48)
+    goal_set = _create(client)
+    response = client.post(
+        f"/api/goal-sets/{goal_set['id']}/examples", files=[("files", ("portrait.jpg", data, "image/jpeg"))]
+    )
+    assert response.status_code == 201, response.text
+    example = response.json()[0]
+    assert example["original_media_type"] == "image/jpeg"
+    assert (example["width"], example["height"]) == (64, 48)
+    model = Image.open(io.BytesIO(client.get(example["model_url"]).content)).convert("RGB")
+    red, _green, blue = model.getpixel((24, 24))
+    assert red > 150 and blue < 100  # the first frame (the photo), not the second
+    original = client.get(example["original_url"])
+    assert original.headers["content-type"] == "image/jpeg" and original.content == data
+
+
+def test_request_over_the_upload_limit_is_413_before_parsing(
+    make_client: Callable[..., TestClient], store: Store
+) -> None:
+    from app.routers.goal_sets import upload_request_limit
+
+    client = make_client(max_upload_bytes=2_000)
+    goal_set = _create(client)
+    limit = upload_request_limit(2_000)
+    # Not even valid multipart: were it parsed, the answer would be 400; the size alone decides first.
+    headers = {"Content-Type": "multipart/form-data; boundary=xyz"}
+    response = client.post(f"/api/goal-sets/{goal_set['id']}/examples", content=b"x" * (limit + 1), headers=headers)
+    assert response.status_code == 413, response.text
+    assert "limit for one request" in response.json()["detail"]
+    # A chunked body (no Content-Length) is counted as it arrives.
+    boundary = "testboundary"
+    head = (
+        f'--{boundary}\r\nContent-Disposition: form-data; name="files"; filename="huge.png"\r\n'
+        "Content-Type: image/png\r\n\r\n"
+    ).encode()
+
+    def chunks():  # type: ignore[no-untyped-def]
+        yield head
+        for _ in range(limit // 65_536 + 2):
+            yield b"\0" * 65_536
+        yield f"\r\n--{boundary}--\r\n".encode()
+
+    response = client.post(
+        f"/api/goal-sets/{goal_set['id']}/examples",
+        content=chunks(),
+        headers={"Content-Type": f"multipart/form-data; boundary={boundary}"},
+    )
+    assert response.status_code == 413, response.text
+    assert "limit for one request" in response.json()["detail"]
+    assert store.list_goal_examples(goal_set_id=goal_set["id"]) == []
+
+
+def test_too_many_files_in_one_upload_is_refused(
+    client: TestClient, store: Store, make_image: Callable[..., bytes]
+) -> None:
+    from app.routers.goal_sets import MAX_FILES_PER_UPLOAD
+
+    goal_set = _create(client)
+    tiny = make_image((8, 8))
+    files = [("files", (f"g{i}.png", tiny, "image/png")) for i in range(MAX_FILES_PER_UPLOAD + 1)]
+    response = client.post(f"/api/goal-sets/{goal_set['id']}/examples", files=files)
+    assert response.status_code in (400, 413), response.text
+    assert str(MAX_FILES_PER_UPLOAD) in response.json()["detail"]
+    assert store.list_goal_examples(goal_set_id=goal_set["id"]) == []

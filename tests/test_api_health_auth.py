@@ -81,3 +81,62 @@ def test_openapi_lists_the_api(client: TestClient) -> None:
                  "/api/runs/{run_id}/metrics", "/api/runs/{run_id}/events", "/health"]:  # fmt: skip
         assert path in paths
     assert client.get("/docs").status_code == 200
+
+
+EVIL = "http://evil.example"
+
+
+def test_without_token_cross_site_writes_are_refused(client: TestClient, make_image: Callable[..., bytes]) -> None:
+    """Any page the user visits could POST to 127.0.0.1:8000 (forms, no-cors fetches): browsers label it."""
+    for headers in [
+        {"Origin": EVIL},
+        {"Origin": "null"},  # sandboxed frames, file: pages
+        {"Origin": "http://testserver:8080"},  # another port on the same host is another origin
+        {"Sec-Fetch-Site": "cross-site"},
+    ]:
+        response = client.post("/api/goal-sets", json={"name": "csrf"}, headers=headers)
+        assert response.status_code == 403, (headers, response.text)
+        assert "another web site" in response.json()["detail"]
+    png = make_image()
+    upload = client.post(
+        "/api/goal-sets/1/examples", files=[("files", ("a.png", png, "image/png"))], headers={"Origin": EVIL}
+    )
+    assert upload.status_code == 403
+    for method, url in [("POST", "/api/runs"), ("POST", "/api/queries/1/answer"), ("DELETE", "/api/goal-sets/1")]:
+        assert client.request(method, url, json={}, headers={"Origin": EVIL}).status_code == 403, (method, url)
+    assert client.get("/api/goal-sets").json() == []
+    # our own pages' fetches (Origin == Host) and programs without Origin (curl, httpx, the oracle) still write
+    same_origin = {"Origin": "http://testserver", "Sec-Fetch-Site": "same-origin"}
+    assert client.post("/api/goal-sets", json={"name": "page"}, headers=same_origin).status_code == 201
+    assert client.post("/api/goal-sets", json={"name": "program"}).status_code == 201
+    # a browser's plain reads stay open
+    assert client.get("/api/goal-sets", headers={"Origin": EVIL, "Sec-Fetch-Site": "cross-site"}).status_code == 200
+
+
+def test_without_token_only_loopback_host_names_are_served(client: TestClient) -> None:
+    """DNS rebinding: evil.example resolving to 127.0.0.1 reaches the server with Host: evil.example."""
+    for host in ["evil.example", "evil.example:8000", "192.168.1.5:8000"]:
+        response = client.get("/api/goal-sets", headers={"Host": host})
+        assert response.status_code == 400, host
+        rebinding = {"Host": host, "Origin": f"http://{host}"}  # same-origin as far as the browser knows
+        assert client.post("/api/goal-sets", json={"name": "rebound"}, headers=rebinding).status_code == 400, host
+    for host in ["127.0.0.1:8000", "localhost:8000", "[::1]:8000", "localhost"]:
+        assert client.get("/health", headers={"Host": host}).status_code == 200, host
+    same_origin = {"Host": "127.0.0.1:8000", "Origin": "http://127.0.0.1:8000"}
+    assert client.post("/api/goal-sets", json={"name": "local page"}, headers=same_origin).status_code == 201
+    assert [g["name"] for g in client.get("/api/goal-sets").json()] == ["local page"]
+
+
+def test_with_token_cross_site_checks_still_apply(make_client: Callable[..., TestClient]) -> None:
+    client = make_client(api_token=TOKEN)
+    good = {"Authorization": f"Bearer {TOKEN}"}
+    # with a token the server may be served under any name (behind a proxy, in docker)
+    assert client.get("/health", headers={"Host": "raq.example.org"}).status_code == 200
+    refused = client.post("/api/goal-sets", json={"name": "x"}, headers={**good, "Origin": EVIL})
+    assert refused.status_code == 403
+    assert client.post("/login", data={"token": TOKEN}, headers={"Origin": EVIL}).status_code == 403
+    assert client.post("/logout", headers={"Sec-Fetch-Site": "cross-site"}).status_code == 403
+    behind_proxy = {"Host": "raq.example.org", "Origin": "https://raq.example.org"}
+    assert client.post("/api/goal-sets", json={"name": "y"}, headers={**good, **behind_proxy}).status_code == 201
+    assert client.post("/login", data={"token": TOKEN}, headers=behind_proxy, follow_redirects=False).status_code == 303
+    assert [g["name"] for g in client.get("/api/goal-sets").json()] == ["y"]

@@ -7,12 +7,14 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from PIL import Image
 
 import learner.testing_envs as testing_envs
 from app.migrate import upgrade
@@ -20,8 +22,9 @@ from app.settings import Settings
 from app.store import RunStatus, Store
 from learner.checkpoint import checkpoint_path, load_checkpoint
 from learner.config import TrainConfig
-from learner.envs import encode_png
-from learner.train import Trainer
+from learner.envs import decode_image, encode_png
+from learner.reward import RewardModel
+from learner.train import Outcome, Trainer
 from learner.worker import work
 
 torch.set_num_threads(1)
@@ -200,16 +203,29 @@ def _wait_for(path: Path, process: subprocess.Popen, timeout: float = 60.0) -> N
 
 
 def test_sigkilled_learner_is_resumed_from_its_checkpoint(setup: tuple[Settings, Store, int]) -> None:
+    """Answers the killed learner read after its checkpoint are read again by the resumed one (none lost, none
+    counted twice), and the metrics it recorded after the checkpoint are replaced, not duplicated."""
     settings, store, goal_set_id = setup
-    config = tiny_config(algorithm="vice_raq", total_steps=1200, checkpoint_every=100, eval_every=1000)
+    config = tiny_config(algorithm="vice_raq", total_steps=1200, checkpoint_every=300, eval_every=1000)
     run_id = create_run(store, goal_set_id, config)
     path = checkpoint_path(settings.checkpoint_dir, run_id)
     first = _spawn_worker(settings, "first")
-    _wait_for(path, first)
+    _wait_for(path, first)  # step 300: the 4 queries (steps 50 to 200) are posted
+    pending = store.pending_queries(run_id=run_id)
+    assert pending
+    yes = 0
+    for i, query in enumerate(pending):
+        store.answer_query(query_id=query.id, success=i % 2 == 0, labeler="test")
+        yes += i % 2 == 0
+    deadline = time.monotonic() + 60
+    while any(store.get_query(query_id=q.id).used_at is None for q in pending):  # read at step 350
+        assert first.poll() is None and time.monotonic() < deadline, "the learner did not read the answers"
+        time.sleep(0.01)
     first.send_signal(signal.SIGKILL)
     first.wait(timeout=30)
     state = load_checkpoint(path)
-    assert state is not None and 100 <= state["step"] < config.total_steps
+    assert state is not None and state["step"] == 300  # killed after reading the answers, before checkpointing
+    assert len(state["reward_model"]["answered_positives"]) == 0
     assert store.get_run(run_id=run_id).status in RunStatus.ACTIVE
     time.sleep(0.6)
     resumed = Settings(data_dir=settings.data_dir, database_url=settings.database_url, stale_heartbeat_seconds=0.5)
@@ -217,7 +233,15 @@ def test_sigkilled_learner_is_resumed_from_its_checkpoint(setup: tuple[Settings,
     run = store.get_run(run_id=run_id)
     assert run.status == RunStatus.FINISHED and run.step == config.total_steps and run.worker == "second"
     messages = [event.message for event in store.events(run_id=run_id, limit=1000)]
-    assert f"resumed from checkpoint at step {state['step']}" in messages
+    assert any(m.startswith(f"resumed from checkpoint at step {state['step']}; ") for m in messages), messages
+    final = load_checkpoint(path)
+    assert final is not None and final["step"] == config.total_steps
+    assert len(final["reward_model"]["answered_positives"]) == yes
+    assert len(final["reward_model"]["answered_negatives"]) == 0  # vice_raq: a no is not an extra negative
+    seen: set[tuple[str, int]] = set()
+    for metric in store.metrics(run_id=run_id):
+        assert (metric.name, metric.step) not in seen, f"{metric.name} recorded twice at step {metric.step}"
+        seen.add((metric.name, metric.step))
     asked = store.list_queries(run_id=run_id)
     assert len(asked) <= config.query_budget  # the budget counts the queries of the killed learner too
     assert len({store.query_image(query_id=q.id, resolution="model") for q in asked}) == len(asked)
@@ -254,3 +278,155 @@ def test_visual_pusher_run(setup: tuple[Settings, Store, int]) -> None:
     queries = store.list_queries(run_id=run_id)
     assert queries and all(q.ground_truth_success in (0.0, 1.0) and "mug_pos" in q.info for q in queries)
     assert "eval/success_rate" in {metric.name for metric in store.metrics(run_id=run_id)}
+
+
+def _claimed_trainer(store: Store, settings: Settings, run_id: int, config: TrainConfig, goal_set_id: int | None,
+                     interrupt: threading.Event | None = None) -> Trainer:  # fmt: skip
+    run = store.claim_next_run(worker="w")
+    assert run is not None and run.id == run_id
+    return Trainer(
+        config, store=store, run_id=run_id, worker="w", goal_set_id=goal_set_id,
+        checkpoint_file=checkpoint_path(settings.checkpoint_dir, run_id), interrupt=interrupt,
+    )  # fmt: skip
+
+
+def test_interrupt_stops_the_naive_classifier_training_and_the_resume_redoes_it(
+    setup: tuple[Settings, Store, int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    settings, store, goal_set_id = setup
+    config = tiny_config(algorithm="naive_classifier", total_steps=120, naive_classifier_steps=100_000)
+    run_id = create_run(store, goal_set_id, config)
+    interrupt = threading.Event()
+    calls = []
+    update = RewardModel.update_classifier
+
+    def counted(model: RewardModel, *args: object, **kwargs: object) -> dict[str, float]:
+        calls.append(1)
+        if len(calls) == 5:
+            interrupt.set()  # Ctrl-C during the 100,000-step training
+        return update(model, *args, **kwargs)
+
+    monkeypatch.setattr(RewardModel, "update_classifier", counted)
+    trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id, interrupt)
+    try:
+        assert trainer.train() == Outcome.REQUEUED
+    finally:
+        trainer.close()
+    assert len(calls) == 5
+    state = load_checkpoint(checkpoint_path(settings.checkpoint_dir, run_id))
+    assert state is not None and state["step"] == config.epoch_steps and not state["naive_trained"]
+    assert store.get_run(run_id=run_id).status == RunStatus.QUEUED
+
+    calls.clear()
+    resumed_config = replace(config, naive_classifier_steps=30)
+    trainer = _claimed_trainer(store, settings, run_id, resumed_config, goal_set_id)
+    try:
+        assert trainer.train() == Outcome.FINISHED
+    finally:
+        trainer.close()
+    assert len(calls) == 30  # trained again, in full, once
+    final = load_checkpoint(checkpoint_path(settings.checkpoint_dir, run_id))
+    assert final is not None and final["naive_trained"]
+    assert [m.step for m in store.metrics(run_id=run_id, names=["reward/loss"])] == [config.epoch_steps]
+
+
+def test_interrupt_stops_an_evaluation(setup: tuple[Settings, Store, int]) -> None:
+    settings, store, _ = setup
+    config = tiny_config(algorithm="sparse", eval_episodes=5)
+    run_id = create_run(store, None, config)
+    interrupt = threading.Event()
+    trainer = _claimed_trainer(store, settings, run_id, config, None, interrupt)
+    steps = []
+    step = trainer.eval_env.step
+
+    def counted(action: np.ndarray):
+        steps.append(1)
+        if len(steps) == 3:
+            interrupt.set()
+        return step(action)
+
+    trainer.eval_env.step = counted
+    try:
+        trainer._evaluate()
+    finally:
+        trainer.close()
+    assert len(steps) == 3
+    assert store.metrics(run_id=run_id) == [] and store.latest_rollout(run_id=run_id) is None
+    assert trainer.evaluated_step == -1  # not done: a resume at this step evaluates again
+
+
+def test_setup_beats_and_a_missing_checkpoint_restarts_with_a_warning(
+    setup: tuple[Settings, Store, int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    settings, store, goal_set_id = setup
+    config = tiny_config(algorithm="vice_raq", heartbeat_seconds=1e-6)
+    run_id = create_run(store, goal_set_id, config)
+    interrupt = threading.Event()
+    trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id, interrupt)
+    assert store.heartbeat(run_id=run_id, worker="w", step=500)  # another host got this far; no checkpoint here
+    store.record_metrics(run_id=run_id, step=400, values={"critic/loss": 1.0})
+    beats: list[dict] = []
+    heartbeat = store.heartbeat
+
+    def recorded(**kwargs: object) -> bool:
+        beats.append(dict(kwargs, stored_step=store.get_run(run_id=run_id).step))
+        return heartbeat(**kwargs)
+
+    monkeypatch.setattr(store, "heartbeat", recorded)
+    interrupt.set()  # stop at the first step
+    try:
+        assert trainer.train() == Outcome.REQUEUED
+    finally:
+        trainer.close()
+    first_training = next(i for i, beat in enumerate(beats) if beat.get("status") == RunStatus.TRAINING)
+    assert first_training >= 3  # after the goals, the checkpoint read and the restore (and the queries)
+    assert beats[0]["step"] is None and beats[1]["stored_step"] == 500  # the stored step is not clobbered
+    events = store.events(run_id=run_id, limit=1000)
+    warning = [e for e in events if e.level == "warning"]
+    assert len(warning) == 1 and "no checkpoint was found at" in warning[0].message
+    assert str(checkpoint_path(settings.checkpoint_dir, run_id)) in warning[0].message
+    assert "restarts from step 0" in warning[0].message
+    assert store.metrics(run_id=run_id, names=["critic/loss"]) == []
+
+
+def test_goals_are_remade_from_their_originals_at_the_run_image_size(setup: tuple[Settings, Store, int]) -> None:
+    settings, store, _ = setup
+    rng = np.random.default_rng(0)
+    goal_set = store.create_goal_set(name="big", image_size=32)
+    originals = []
+    for i in range(2):
+        pixels = rng.integers(0, 256, size=(64, 80, 3), dtype=np.uint8)  # 80 x 64: centre-cropped to 64 x 64
+        original = encode_png(pixels)
+        originals.append(pixels)
+        model = np.array(Image.fromarray(pixels[:, 8:72]).resize((32, 32), Image.Resampling.LANCZOS))
+        store.add_goal_example(
+            goal_set_id=goal_set.id, filename=f"g{i}.png", original=original, original_media_type="image/png",
+            width=80, height=64, model_png=encode_png(model), display_png=original,
+        )  # fmt: skip
+    config = tiny_config(algorithm="vice_raq", image_size=16)
+    run_id = create_run(store, goal_set.id, config)
+    trainer = _claimed_trainer(store, settings, run_id, config, goal_set.id)
+    try:
+        trainer._load_goals()
+    finally:
+        trainer.close()
+    assert trainer.reward_model is not None
+    goals = trainer.reward_model.goals
+    assert goals.shape == (2, 16, 16, 3)
+    for goal, pixels in zip(goals, originals, strict=True):
+        square = Image.fromarray(pixels[:, 8:72])
+        expected = np.array(square.resize((16, 16), Image.Resampling.LANCZOS, reducing_gap=3.0))
+        np.testing.assert_array_equal(goal, expected)
+    # at the goal set's own size the stored model copies are used as they are
+    same = tiny_config(algorithm="vice_raq", image_size=32)
+    trainer = Trainer(
+        same, store=store, run_id=run_id, worker="w", goal_set_id=goal_set.id,
+        checkpoint_file=checkpoint_path(settings.checkpoint_dir, run_id),
+    )  # fmt: skip
+    try:
+        trainer._load_goals()
+    finally:
+        trainer.close()
+    assert trainer.reward_model is not None
+    stored = [decode_image(g.model_png, 32) for g in store.goal_images(goal_set_id=goal_set.id)]
+    np.testing.assert_array_equal(trainer.reward_model.goals, np.stack(stored))

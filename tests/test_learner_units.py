@@ -164,6 +164,43 @@ def test_critic_fits_the_soft_bellman_target_and_alpha_moves(shared: bool) -> No
         torch.testing.assert_close(new, old + config.tau * (online - old))
 
 
+@pytest.mark.parametrize("shared", [True, False])
+def test_critic_target_bootstraps_through_non_terminal_transitions(shared: bool) -> None:
+    """y = r + gamma (min_j Q'_j(s', a') - alpha log pi(a'|s')), a' ~ pi(.|s'), with not_done = 1: computed here
+    from the target critic (made to differ from the online one), the same torch seed for a', alpha != 1."""
+    torch.manual_seed(0)
+    config = tiny(shared_encoder=shared, precision="fp32", discount=0.9)
+    agent = SACAgent(config, action_dim=2)
+    with torch.no_grad():
+        agent.log_alpha.fill_(math.log(0.3))
+        for p in agent.critic_target.parameters():
+            p.add_(0.1 * torch.randn_like(p))
+    rng = np.random.default_rng(1)
+    obs, next_obs = to_float(replay_like(rng, 16)), to_float(replay_like(rng, 16))
+    action = torch.from_numpy(rng.uniform(-1, 1, (16, 2)).astype(np.float32))
+    reward = torch.from_numpy(rng.normal(size=16).astype(np.float32))
+    not_done = torch.ones(16)
+    with torch.no_grad():
+        features = agent.encoder(next_obs) if shared else next_obs
+        mean, log_std = agent.actor(features)
+        torch.manual_seed(123)
+        u = mean + log_std.exp() * torch.randn_like(mean)
+        next_action = torch.tanh(u)
+        normal = torch.distributions.Normal(mean, log_std.exp()).log_prob(u).sum(-1)
+        log_pi = normal - torch.log(1 - next_action.pow(2)).sum(-1)
+        q1, q2 = agent.critic_target(features, next_action)
+        online1, _ = agent.critic(features, next_action)
+        expected = reward + 0.9 * (torch.min(q1, q2) - 0.3 * log_pi)
+    assert not torch.allclose(online1, q1)  # the target critic is what must be used
+    torch.manual_seed(123)
+    metrics, _ = agent.update_critic(obs, action, reward, next_obs, not_done)
+    assert metrics["critic/target_mean"] == pytest.approx(expected.mean().item(), rel=1e-4, abs=1e-4)
+    # and a terminal transition does not bootstrap
+    torch.manual_seed(123)
+    metrics, _ = agent.update_critic(obs, action, reward, next_obs, torch.zeros(16))
+    assert metrics["critic/target_mean"] == pytest.approx(reward.mean().item(), rel=1e-5, abs=1e-6)
+
+
 # ---------------------------------------------------------------------------------------------- replay
 def test_replay_stores_each_frame_once_and_shifts_like_drq() -> None:
     rng = np.random.default_rng(0)
@@ -199,6 +236,62 @@ def test_reward_cache_is_exact_per_classifier_version() -> None:
     np.testing.assert_allclose(model.rewards(replay, indices), model.logits(frames[indices + 1]), rtol=1e-5)
     model.update_classifier(goal_like(rng, 8), replay_like(rng, 8))
     np.testing.assert_allclose(model.rewards(replay, indices), model.logits(frames[indices + 1]), rtol=1e-5)
+
+
+def test_reward_cache_is_not_stale_after_a_ring_wrap_or_a_checkpoint_round_trip() -> None:
+    rng = np.random.default_rng(0)
+    config = tiny(algorithm="raq")
+    model = RewardModel(config, rng)
+    replay = ReplayBuffer(capacity=5, image_shape=(SIZE, SIZE, 3), action_dim=2)
+    frames = replay_like(rng, 6)
+    slots = [replay.add_frame(f) for f in frames]
+    for i in range(5):
+        replay.add(slots[i], np.zeros(2, np.float32), slots[i + 1], False, None)
+    everything = np.arange(5)
+    np.testing.assert_allclose(model.rewards(replay, everything), model.logits(frames[1:]), rtol=1e-5)
+    # the ring wraps: transition 0 is reused for a new (s, s') with the classifier unchanged
+    newer = goal_like(rng, 1)[0]
+    replay.add(slots[5], np.zeros(2, np.float32), replay.add_frame(newer), False, None)
+    rewards = model.rewards(replay, np.array([0, 1]))
+    np.testing.assert_allclose(rewards[0], model.logits(newer[None])[0], rtol=1e-5)
+    np.testing.assert_allclose(rewards[1], model.logits(frames[2:3])[0], rtol=1e-5)
+    assert not np.isclose(rewards[0], model.logits(frames[1:2])[0])
+
+    # checkpoint round-trip into fresh objects, after the classifier moved on from what was cached
+    cached = model.rewards(replay, everything).copy()
+    model.update_classifier(goal_like(rng, 8), replay_like(rng, 8))
+    after = model.rewards(replay, everything).copy()
+    assert not np.allclose(cached, after)
+    restored_model = RewardModel(config, np.random.default_rng(1))
+    restored_replay = ReplayBuffer(capacity=5, image_shape=(SIZE, SIZE, 3), action_dim=2)
+    # the fresh objects' own cache: computed by the untrained net at version 0 (what the load must invalidate)
+    restored_replay.add(0, np.zeros(2, np.float32), 1, False, None)
+    restored_model.rewards(restored_replay, np.array([0]))
+    restored_model.load_state_dict(model.state_dict())
+    restored_replay.load_state_dict(replay.state_dict())
+    next_frames = replay.frames[replay.next_slot[everything]]
+    np.testing.assert_allclose(restored_model.rewards(restored_replay, everything), after, rtol=1e-5)
+    np.testing.assert_allclose(restored_model.logits(next_frames), after, rtol=1e-5)
+    # a classifier step after the load still invalidates the cache
+    restored_model.update_classifier(goal_like(rng, 8), replay_like(rng, 8))
+    np.testing.assert_allclose(
+        restored_model.rewards(restored_replay, everything), restored_model.logits(next_frames), rtol=1e-5
+    )
+
+
+def test_frames_since_before_the_first_frame_returns_only_written_frames() -> None:
+    rng = np.random.default_rng(0)
+    replay = ReplayBuffer(capacity=10, image_shape=(SIZE, SIZE, 3), action_dim=2)
+    frames = replay_like(rng, 3)
+    for frame in frames:
+        replay.add_frame(frame)
+    np.testing.assert_array_equal(replay.frames_since(replay.frames_added - 256), frames)
+    np.testing.assert_array_equal(replay.frames_since(-1), frames)
+    np.testing.assert_array_equal(replay.frames_since(1), frames[1:])
+    more = replay_like(rng, 30)  # past the ring (22 frames): only what is still stored
+    for frame in more:
+        replay.add_frame(frame)
+    np.testing.assert_array_equal(replay.frames_since(-5), more[-replay.frame_capacity :])
 
 
 # ---------------------------------------------------------------------------------------------- queries

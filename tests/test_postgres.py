@@ -11,6 +11,7 @@ import shutil
 import socket
 import subprocess
 import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -119,4 +120,34 @@ def test_the_store_works_on_postgresql(postgres_url: str) -> None:
     assert store.latest_metric(run_id=run_id, name="eval/success_rate") == 0.5
     assert store.heartbeat(run_id=run_id, worker=store.get_run(run_id=run_id).worker, step=7) is True
     assert store.get_run(run_id=run_id).heartbeat_at.tzinfo is not None
+    store.dispose()
+
+
+def _answer_at_once(store: Store, query_id: int, success: bool, barrier, outcomes: list) -> None:  # type: ignore[no-untyped-def]
+    barrier.wait()
+    try:
+        store.answer_query(query_id=query_id, success=success, labeler=str(success))
+        outcomes.append(success)
+    except Conflict:
+        outcomes.append("conflict")
+
+
+def test_two_different_answers_at_once_on_postgresql_keep_exactly_one(postgres_url: str) -> None:
+    upgrade(postgres_url)
+    store = Store(postgres_url)
+    run_id = store.create_run(env_id="VisualPusher-v0", algorithm="sparse", config={}).id
+    for _round in range(10):
+        query_id = store.post_query(run_id=run_id, env_step=1, model_png=PNG, display_png=PNG, score=0.0).id
+        barrier, outcomes = threading.Barrier(2), []
+        threads = [
+            threading.Thread(target=_answer_at_once, args=(store, query_id, value, barrier, outcomes))
+            for value in (True, False)
+        ]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        kept = store.get_query(query_id=query_id)
+        assert outcomes.count("conflict") == 1  # one answer wins, the other is refused
+        assert [o for o in outcomes if o != "conflict"] == [kept.answer] and kept.labeler == str(kept.answer)
     store.dispose()

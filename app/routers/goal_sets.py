@@ -12,6 +12,16 @@ from app.schemas import GoalExampleOut, GoalSetCreate, GoalSetDetail, GoalSetOut
 router = APIRouter(tags=["goal sets"])
 
 IMAGE_CACHE = {"Cache-Control": "private, max-age=86400"}  # an example's pixels never change
+MAX_FILES_PER_UPLOAD = 100
+# Room for each part's boundary and headers (a 255-character file name included) and the closing boundary.
+MULTIPART_OVERHEAD_PER_FILE = 4 * 1024
+MULTIPART_OVERHEAD = 64 * 1024
+
+
+def upload_request_limit(max_file_bytes: int) -> int:
+    """The largest whole upload request: MAX_FILES_PER_UPLOAD files at the per-file limit, plus multipart framing.
+    app.main.UploadSizeLimit refuses a bigger request (413) before it is parsed."""
+    return MAX_FILES_PER_UPLOAD * (max_file_bytes + MULTIPART_OVERHEAD_PER_FILE) + MULTIPART_OVERHEAD
 
 
 def _clean_filename(name: str | None, index: int) -> str:
@@ -53,7 +63,12 @@ def list_goal_examples(goal_set_id: int, store: StoreDep) -> list[GoalExampleOut
     "/api/goal-sets/{goal_set_id}/examples",
     status_code=status.HTTP_201_CREATED,
     response_model=list[GoalExampleOut],
-    responses={400: {"description": "A file is not a usable image"}, 413: {"description": "A file is too large"}},
+    responses={
+        400: {"description": "A file is not a usable image"},
+        413: {"description": f"A file, the request, or the number of files (over {MAX_FILES_PER_UPLOAD}) is too large"},
+    },
+    # The form parser stops at the first file past the cap (400) instead of spooling the rest.
+    form_limits={"max_files": MAX_FILES_PER_UPLOAD},
 )
 def upload_goal_examples(
     goal_set_id: int,
@@ -66,10 +81,24 @@ def upload_goal_examples(
     goal_set = store.get_goal_set(goal_set_id=goal_set_id)
     if not files:
         raise HTTPException(status_code=400, detail="no files were uploaded")
+    if len(files) > MAX_FILES_PER_UPLOAD:
+        raise HTTPException(
+            status_code=413,
+            detail=f"{len(files)} files in one upload; the limit is {MAX_FILES_PER_UPLOAD} "
+            "(send them in several uploads; nothing from this upload was stored)",
+        )
+    total_limit = upload_request_limit(settings.max_upload_bytes)
+    total = 0
     prepared: list[PreparedImage] = []
     for index, upload in enumerate(files):
         filename = _clean_filename(upload.filename, index)
         data = upload.file.read(settings.max_upload_bytes + 1)
+        total += len(data)
+        if total > total_limit:
+            raise HTTPException(
+                status_code=413,
+                detail=f"the upload is over {total_limit:,} bytes in all (nothing from this upload was stored)",
+            )
         try:
             prepared.append(
                 prepare_upload(

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Form, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.templating import Jinja2Templates
 
-from app.deps import SESSION_COOKIE, SettingsDep, StoreDep, is_authorised, session_value
+from app.deps import SESSION_COOKIE, SameOrigin, SettingsDep, StoreDep, is_authorised, session_value
 from app.routers.runs import run_detail, run_out
 from app.schemas import GoalExampleOut, GoalSetOut
 from app.store import NotFound
@@ -175,6 +175,7 @@ def login(
     request: Request,
     settings: SettingsDep,
     store: StoreDep,
+    _origin: SameOrigin,
     token: Annotated[str, Form()] = "",
     next: Annotated[str, Form()] = "/",
 ) -> Response:
@@ -200,7 +201,7 @@ def login(
 
 
 @router.post("/logout", response_model=None)
-def logout() -> Response:
+def logout(_origin: SameOrigin) -> Response:
     response = RedirectResponse("/", status_code=303)
     response.delete_cookie(SESSION_COOKIE, path="/")
     return response

@@ -49,6 +49,10 @@ class AnsweredQuery:
     env_step: int
 
 
+class _LostRace(Exception):
+    """A compare-and-set UPDATE found the row changed since it was read."""
+
+
 class Store(Database):
     """The one API over the database for the learner, the server and the tools."""
 
@@ -293,34 +297,48 @@ class Store(Database):
 
     def request_stop(self, *, run_id: int) -> Run:
         """Stop a run: a queued run stops at once, an active one when its learner next beats."""
-        with self.writing() as session:
-            run = session.get(Run, run_id)
-            if run is None:
-                raise NotFound(f"run {run_id} not found")
-            if run.status == RunStatus.QUEUED:
-                run.status, run.finished_at = RunStatus.STOPPED, utcnow()
-                session.add(Event(run_id=run_id, message="stopped before a learner took it"))
-            elif run.status in RunStatus.ACTIVE:
-                run.stop_requested = True
-                session.add(Event(run_id=run_id, message="stop requested"))
-            else:
-                raise Conflict(f"run {run_id} is {run.status}; only queued or active runs can be stopped")
-            session.flush()
-            return run
+        return self._change_run(run_id=run_id, change=self._stop_change)
 
     def resume_run(self, *, run_id: int) -> Run:
         """Queue a stopped or failed run again; the learner resumes it from its last checkpoint."""
-        with self.writing() as session:
-            run = session.get(Run, run_id)
-            if run is None:
-                raise NotFound(f"run {run_id} not found")
-            if run.status not in (RunStatus.STOPPED, RunStatus.FAILED):
-                raise Conflict(f"run {run_id} is {run.status}; only stopped or failed runs can be resumed")
-            run.status, run.status_reason, run.stop_requested = RunStatus.QUEUED, "", False
-            run.finished_at = None
-            session.add(Event(run_id=run_id, message="resume requested: queued"))
-            session.flush()
-            return run
+        return self._change_run(run_id=run_id, change=self._resume_change)
+
+    @staticmethod
+    def _stop_change(run: Run) -> tuple[dict[str, Any], str]:
+        if run.status == RunStatus.QUEUED:
+            return {"status": RunStatus.STOPPED, "finished_at": utcnow()}, "stopped before a learner took it"
+        if run.status in RunStatus.ACTIVE:
+            return {"stop_requested": True}, "stop requested"
+        raise Conflict(f"run {run.id} is {run.status}; only queued or active runs can be stopped")
+
+    @staticmethod
+    def _resume_change(run: Run) -> tuple[dict[str, Any], str]:
+        if run.status not in (RunStatus.STOPPED, RunStatus.FAILED):
+            raise Conflict(f"run {run.id} is {run.status}; only stopped or failed runs can be resumed")
+        values = {"status": RunStatus.QUEUED, "status_reason": "", "stop_requested": False, "finished_at": None}
+        return values, "resume requested: queued"
+
+    def _change_run(self, *, run_id: int, change: Any) -> Run:
+        """Apply change(run) -> (values, event message) as a compare-and-set on the status it saw."""
+        for _attempt in range(5):
+            with self.writing() as session:
+                run = session.get(Run, run_id, populate_existing=True)
+                if run is None:
+                    raise NotFound(f"run {run_id} not found")
+                values, message = change(run)
+                changed = session.execute(
+                    update(Run)
+                    .where(Run.id == run_id, Run.status == run.status)
+                    .values(**values)
+                    .execution_options(synchronize_session=False)
+                ).rowcount
+                if not changed:  # its learner changed the status meanwhile: look again
+                    continue
+                session.add(Event(run_id=run_id, message=message))
+                session.flush()
+                session.refresh(run)
+                return run
+        raise Conflict(f"run {run_id} kept changing; try again")
 
     # ---------------------------------------------------------------- queries
     def post_query(
@@ -410,74 +428,104 @@ class Store(Database):
         for _attempt in range(5):
             try:
                 return self._answer_query_once(query_id=query_id, success=success, labeler=labeler)
-            except IntegrityError:  # two answers took the same answer_seq at once (PostgreSQL): retry
+            except (IntegrityError, _LostRace):  # another answer got there first (PostgreSQL): look again
                 continue
         raise Conflict("could not record the answer: too many concurrent answers, try again")
 
     def _answer_query_once(self, *, query_id: int, success: bool, labeler: str) -> Query:
         with self.writing() as session:
-            query = session.get(Query, query_id)
-            if query is None:
-                raise NotFound(f"query {query_id} not found")
+            query = self._query_row(session, query_id)
             if query.status == QueryStatus.ANSWERED:
                 if query.answer == success:
                     return query
                 first = "yes" if query.answer else "no"
                 raise Conflict(f"query {query_id} was already answered {first!r}; the first answer is kept")
             next_seq = (session.scalar(select(func.max(Query.answer_seq))) or 0) + 1
-            query.status, query.answer, query.labeler = QueryStatus.ANSWERED, success, labeler[:200] or None
-            query.answered_at, query.answer_seq = utcnow(), next_seq
-            session.flush()
+            # Compare-and-set: only a query that is still unanswered takes this answer. Under PostgreSQL's
+            # READ COMMITTED a concurrent answer may have landed since the read above.
+            self._compare_and_set(
+                session, query, Query.status != QueryStatus.ANSWERED,
+                status=QueryStatus.ANSWERED, answer=success, labeler=labeler[:200] or None, answered_at=utcnow(),
+                answer_seq=next_seq,
+            )  # fmt: skip
             return query
 
     def skip_query(self, *, query_id: int, labeler: str = "") -> Query:
-        with self.writing() as session:
-            query = session.get(Query, query_id)
-            if query is None:
-                raise NotFound(f"query {query_id} not found")
-            if query.status == QueryStatus.ANSWERED:
-                raise Conflict(f"query {query_id} was already answered; the answer is kept")
-            query.status, query.labeler, query.answered_at = QueryStatus.SKIPPED, labeler[:200] or None, utcnow()
-            session.flush()
-            return query
+        for _attempt in range(5):
+            with self.writing() as session:
+                query = self._query_row(session, query_id)
+                if query.status == QueryStatus.ANSWERED:
+                    raise Conflict(f"query {query_id} was already answered; the answer is kept")
+                if query.status == QueryStatus.SKIPPED:
+                    return query
+                try:
+                    self._compare_and_set(
+                        session, query, Query.status == QueryStatus.PENDING,
+                        status=QueryStatus.SKIPPED, labeler=labeler[:200] or None, answered_at=utcnow(),
+                    )  # fmt: skip
+                except _LostRace:
+                    continue
+                return query
+        raise Conflict(f"query {query_id} changed while skipping it; try again")
 
     def undo_answer(self, *, query_id: int) -> Query:
         """Put an answered or skipped query back to pending, while the learner has not used it."""
-        with self.writing() as session:
-            query = session.get(Query, query_id)
-            if query is None:
-                raise NotFound(f"query {query_id} not found")
-            if query.status == QueryStatus.PENDING:
-                raise Conflict(f"query {query_id} has no answer to undo")
-            if query.used_at is not None:
-                raise Conflict(f"query {query_id}: the learner has already used this answer")
-            previous = "skip" if query.status == QueryStatus.SKIPPED else ("yes" if query.answer else "no")
-            query.status, query.answer, query.labeler = QueryStatus.PENDING, None, None
-            query.answered_at, query.answer_seq = None, None
-            session.add(Event(run_id=query.run_id, message=f"answer {previous!r} to query {query_id} undone"))
-            session.flush()
-            return query
+        for _attempt in range(5):
+            with self.writing() as session:
+                query = self._query_row(session, query_id)
+                if query.status == QueryStatus.PENDING:
+                    raise Conflict(f"query {query_id} has no answer to undo")
+                if query.used_at is not None:
+                    raise Conflict(f"query {query_id}: the learner has already used this answer")
+                previous = "skip" if query.status == QueryStatus.SKIPPED else ("yes" if query.answer else "no")
+                try:
+                    self._compare_and_set(
+                        session, query, (Query.status == query.status) & Query.used_at.is_(None),
+                        status=QueryStatus.PENDING, answer=None, labeler=None, answered_at=None, answer_seq=None,
+                    )  # fmt: skip
+                except _LostRace:
+                    continue
+                session.add(Event(run_id=query.run_id, message=f"answer {previous!r} to query {query_id} undone"))
+                return query
+        raise Conflict(f"query {query_id} changed while undoing its answer; try again")
+
+    @staticmethod
+    def _query_row(session: Any, query_id: int) -> Query:
+        query = session.get(Query, query_id, populate_existing=True)
+        if query is None:
+            raise NotFound(f"query {query_id} not found")
+        return query
+
+    @staticmethod
+    def _compare_and_set(session: Any, query: Query, condition: Any, **values: Any) -> None:
+        """UPDATE the query only while `condition` still holds; raise _LostRace when it no longer does."""
+        changed = session.execute(
+            update(Query)
+            .where(Query.id == query.id, condition)
+            .values(**values)
+            .execution_options(synchronize_session=False)
+        ).rowcount
+        if not changed:
+            raise _LostRace
+        session.refresh(query)
 
     def new_answers(self, *, run_id: int, since_seq: int = 0) -> list[AnsweredQuery]:
-        """Answers to the run's queries with answer_seq > since_seq, oldest first. Marks them used in
-        the same transaction, so an answer the learner has read can no longer be undone."""
+        """Answers to the run's queries with answer_seq > since_seq, oldest first. Marks them used in the same
+        statement (UPDATE … RETURNING), so an answer the learner has read can no longer be undone, and an
+        answer undone first is not returned."""
         with self.writing() as session:
             rows = session.execute(
-                select(Query.id, Query.answer_seq, Query.answer, Query.model_png, Query.env_step)
+                update(Query)
                 .where(Query.run_id == run_id, Query.status == QueryStatus.ANSWERED, Query.answer_seq > since_seq)
-                .order_by(Query.answer_seq)
+                .values(used_at=func.coalesce(Query.used_at, utcnow()))
+                .returning(Query.id, Query.answer_seq, Query.answer, Query.model_png, Query.env_step)
+                .execution_options(synchronize_session=False)
             ).all()
-            if rows:
-                session.execute(
-                    update(Query)
-                    .where(Query.id.in_([row[0] for row in rows]), Query.used_at.is_(None))
-                    .values(used_at=utcnow())
-                )
             return [
                 AnsweredQuery(
                     query_id=row[0], answer_seq=row[1], success=bool(row[2]), model_png=row[3], env_step=row[4]
                 )
-                for row in rows
+                for row in sorted(rows, key=lambda row: row[1])
             ]
 
     # ---------------------------------------------------------------- metrics, events, rollouts
@@ -566,6 +614,13 @@ class Store(Database):
             if data is None:
                 raise NotFound(f"rollout {rollout_id} not found")
             return data
+
+    def delete_metrics_after(self, *, run_id: int, step: int) -> int:
+        """Delete the run's metrics recorded at steps after `step` (a resume from an older checkpoint
+        records them again); returns how many were deleted."""
+        with self.writing() as session:
+            result = session.execute(delete(Metric).where(Metric.run_id == run_id, Metric.step > step))
+            return int(result.rowcount or 0)
 
     # ---------------------------------------------------------------- helpers
     def ping(self) -> bool:
