@@ -182,7 +182,7 @@ def main() -> int:
         writer = csv.DictWriter(handle, fieldnames=["step", *CURVE_METRICS])
         writer.writeheader()
         writer.writerows(rows)
-    success = [(row["step"], row["eval/success_rate"]) for row in rows if "eval/success_rate" in row]
+    success = [(m.step, m.value) for m in store.metrics(run_id=run.id, names=["eval/success_rate"])]
     queries = [(row["step"], row.get("queries/asked", 0) / max(1, args.query_budget)) for row in rows]
     line_plot(
         out / "curve.png",

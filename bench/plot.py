@@ -53,5 +53,5 @@ def line_plot(
             draw.line(pixels, fill=colour, width=2)
         for px, py in pixels:
             draw.ellipse([px - 2, py - 2, px + 2, py + 2], fill=colour)
-        draw.text((width - right - 220, top + 8 + 16 * index), f"— {name}", fill=colour)
+        draw.text((width - right - 220, top + 8 + 16 * index), f"- {name}", fill=colour)
     image.save(path)
