@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 from sqlalchemy import inspect
+from test_store import _claim_all  # the same racing worker as on SQLite
 
 from app.migrate import downgrade, upgrade
 from app.store import Conflict, Store
@@ -74,15 +75,6 @@ def test_migrations_run_up_and_down_on_postgresql(postgres_url: str) -> None:
     upgrade(postgres_url)
 
 
-def _claim_all(url: str, worker: str, barrier, results) -> None:  # type: ignore[no-untyped-def]
-    store = Store(url)
-    barrier.wait()
-    claimed = []
-    while (run := store.claim_next_run(worker=worker)) is not None:
-        claimed.append(run.id)
-    results.put(claimed)
-
-
 def test_the_store_works_on_postgresql(postgres_url: str) -> None:
     upgrade(postgres_url)
     store = Store(postgres_url)
@@ -101,10 +93,10 @@ def test_the_store_works_on_postgresql(postgres_url: str) -> None:
     workers = [context.Process(target=_claim_all, args=(postgres_url, name, barrier, results)) for name in "ab"]
     for worker in workers:
         worker.start()
-    claims = [results.get(timeout=60) for _ in workers]
+    claims = dict(results.get(timeout=60) for _ in workers)
     for worker in workers:
         worker.join(timeout=30)
-    assert sorted(claims[0] + claims[1]) == run_ids and not set(claims[0]) & set(claims[1])
+    assert sorted(claims["a"] + claims["b"]) == run_ids and not set(claims["a"]) & set(claims["b"])
 
     run_id = run_ids[0]
     query = store.post_query(
