@@ -26,8 +26,8 @@ from app.migrate import upgrade  # noqa: E402
 from app.store import Store  # noqa: E402
 from bench.plot import line_plot  # noqa: E402
 from learner.config import TrainConfig  # noqa: E402
+from sim import TASKS  # noqa: E402
 
-TASKS = {"pusher": "VisualPusher-v0", "door": "VisualDoor-v0", "picker": "VisualPicker-v0"}
 CURVE_METRICS = [
     "eval/success_rate", "eval/return", "queries/asked", "queries/answered", "queries/yes",
     "reward/acc_goal", "reward/acc_replay", "perf/updates_per_second", "perf/steps_per_second",

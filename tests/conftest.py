@@ -95,7 +95,8 @@ def goal_set_with_photo(client: TestClient) -> dict:
     return goal_set
 
 
-def _free_port() -> int:
+def free_port() -> int:
+    """A free TCP port on 127.0.0.1 for a server the tests start."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
@@ -104,7 +105,7 @@ def _free_port() -> int:
 @pytest.fixture
 def live_server(database_url: str, tmp_path: Path) -> Iterator[str]:
     """`raq serve` as the CLI runs it: uvicorn on app.main:create_app, 127.0.0.1, a free port, this test's DB."""
-    port = _free_port()
+    port = free_port()
     env = {key: value for key, value in os.environ.items() if not key.startswith("RAQ_")}
     env.update({"RAQ_DATABASE_URL": database_url, "RAQ_DATA_DIR": str(tmp_path), "PYTHONUNBUFFERED": "1"})
     log_path = tmp_path / "server.log"

@@ -8,7 +8,6 @@ import glob
 import multiprocessing as mp
 import os
 import shutil
-import socket
 import subprocess
 import tempfile
 import threading
@@ -16,6 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import free_port
 from sqlalchemy import inspect
 from test_store import _claim_all  # the same racing worker as on SQLite
 
@@ -43,9 +43,7 @@ def postgres_url() -> Iterator[str]:
     if os.geteuid() == 0:
         shutil.chown(base, "postgres")
         shutil.chown(sockets, "postgres")
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
+    port = free_port()
     run = {"check": True, "capture_output": True, "text": True}
     subprocess.run(as_server_user([postgres_binary("initdb"), "-D", str(data), "-U", "raq", "--auth=trust"]), **run)
     options = f"-p {port} -k {sockets} -c listen_addresses=127.0.0.1 -c fsync=off"
