@@ -77,6 +77,10 @@ def first_step_reaching(rows: list[dict[str, float]], name: str, threshold: floa
     return next((int(row["step"]) for row in rows if row.get(name, -1) >= threshold), None)
 
 
+def reached_success(store: Store, run_id: int, rate: float) -> bool:
+    return any(m.value >= rate for m in store.metrics(run_id=run_id, names=["eval/success_rate"]))
+
+
 def _interrupt(signum: int, _frame: object) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
@@ -95,6 +99,14 @@ def main() -> int:
     parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="other TrainConfig fields")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--max-minutes", type=float, default=180)
+    parser.add_argument(
+        "--stop-at-success", type=float, default=None, metavar="RATE",
+        help="stop the run at the first evaluation with at least this success rate (saves the rest of the run)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--threads", type=int, default=None,
+        help="torch threads of the learner (OMP_NUM_THREADS); 1 lets two runs share 2 cores without oversubscription",
+    )  # fmt: skip
     args = parser.parse_args()
 
     name = f"{args.task}-{args.algorithm}-seed{args.seed}"
@@ -110,6 +122,8 @@ def main() -> int:
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     env = {**os.environ, "RAQ_DATA_DIR": str(data_dir), "RAQ_PORT": str(port), "PYTHONUNBUFFERED": "1"}
+    if args.threads:
+        env["OMP_NUM_THREADS"] = str(args.threads)
     env.pop("RAQ_DATABASE_URL", None)
     env.pop("DATABASE_URL", None)
     database_url = f"sqlite:///{(data_dir / 'raq.sqlite3').resolve()}"
@@ -128,6 +142,7 @@ def main() -> int:
     )
     processes = [serve]
     started = time.monotonic()
+    stop_reason: str | None = None
     try:
         wait_for_health(url)
         oracle_args = [
@@ -147,7 +162,11 @@ def main() -> int:
         next_report = time.monotonic() + 60
         while learner.poll() is None:
             if time.monotonic() - started > args.max_minutes * 60:
-                print("time limit reached: stopping the run", flush=True)
+                stop_reason = f"time limit of {args.max_minutes} min reached"
+            elif args.stop_at_success is not None and reached_success(store, run.id, args.stop_at_success):
+                stop_reason = f"eval success rate reached {args.stop_at_success}"
+            if stop_reason:
+                print(f"{stop_reason}: stopping the run", flush=True)
                 store.request_stop(run_id=run.id)
                 learner.wait(timeout=300)
                 break
@@ -196,6 +215,8 @@ def main() -> int:
     summary = {
         "run": name,
         "status": final.status,
+        "stopped_because": stop_reason,
+        "learner_threads": args.threads,
         "reason": final.status_reason,
         "env_steps": final.step,
         "steps_to_90pct_success": reached,
