@@ -55,12 +55,7 @@ def ensure_demo_run(settings: Settings) -> int | None:
             if existing
             else add_simulated_goal_set(store, task="pusher", name=DEMO_GOAL_SET, count=DEMO_GOAL_COUNT)
         )
-        # 100 classifier steps per epoch at lr 3e-4 (the paper swept N in {5, 10, 100}; its appendix gives
-        # lr 3e-4): with the default 10 at 1e-4, f_psi needs tens of thousands of steps to separate goals.
-        config = TrainConfig(
-            env_id="VisualPusher-v0", algorithm="vice_raq", query_every=1000, query_budget=30,
-            classifier_steps=100, classifier_lr=3e-4,
-        )  # fmt: skip
+        config = TrainConfig(env_id="VisualPusher-v0", algorithm="vice_raq", query_every=1000, query_budget=30)
         run = store.create_run(
             name="demo: push the mug onto the coaster",
             env_id=config.env_id,

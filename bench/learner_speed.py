@@ -51,10 +51,10 @@ def measure(config: TrainConfig, updates: int, transitions: int) -> float:
     classifier_every = max(1, round(config.epoch_steps / max(config.classifier_steps, 1)))
 
     def one_update(index: int) -> None:
-        if config.classifier_steps and index % classifier_every == 0:  # amortised: 10 per 1000 updates
+        if config.classifier_steps and index % classifier_every == 0:  # amortised: classifier_steps per epoch
             positives = reward_model.sample_positives(config.classifier_batch_size)
             negatives = replay.sample_next_frames(rng, config.classifier_batch_size)
-            reward_model.update_classifier(positives, negatives, agent.policy)
+            reward_model.update_classifier(positives, negatives, agent.policy, accuracy=False)  # as train.py
         batch = replay.sample(rng, config.batch_size, pad)
         rewards = reward_model.rewards(replay, batch.indices)
         agent.update(

@@ -114,9 +114,10 @@ class RewardModel:
         return f - log_pi, f, log_pi
 
     def update_classifier(
-        self, positives: np.ndarray, negatives: np.ndarray, policy: Policy | None = None
+        self, positives: np.ndarray, negatives: np.ndarray, policy: Policy | None = None, *, accuracy: bool = True
     ) -> dict[str, float]:
-        """One Adam step of the method's loss on uint8 NHWC positives and negatives; returns metrics.
+        """One Adam step of the method's loss on uint8 NHWC positives and negatives; returns metrics (the
+        accuracies need another forward pass of f_psi and pi: `accuracy=False` leaves them out).
 
         Mixup with the AIRL form: the discriminator is a function of (s, a), so the mixed sample must be one
         (s~, a~) pair; we sample a~ ~ pi(.|s~) for the mixed image and use f_psi(s~) - log pi(a~|s~) as its
@@ -133,7 +134,8 @@ class RewardModel:
         self.opt.step()
         self.version += 1
         metrics = {"reward/loss": loss.item()}
-        metrics.update(self._accuracy(images, len(positives), policy))
+        if accuracy:
+            metrics.update(self._accuracy(images, len(positives), policy))
         return metrics
 
     @torch.no_grad()

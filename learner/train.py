@@ -313,7 +313,8 @@ class Trainer:
                 negatives = self.replay.sample_next_frames(self.rng, cfg.classifier_batch_size)
             else:
                 negatives = model.sample_negatives(cfg.classifier_batch_size)
-            metrics = model.update_classifier(positives, negatives, policy)
+            # the accuracies (a second forward pass) only for the step whose metrics are recorded
+            metrics = model.update_classifier(positives, negatives, policy, accuracy=i == steps - 1)
             if i % 50 == 49:
                 self._tick()
         if not metrics:

@@ -55,6 +55,9 @@ def test_classifier_separates_goals_from_negatives(algorithm: str) -> None:
         pick = rng.integers(0, 64, size=16)
         metrics = model.update_classifier(goals[pick], negatives[pick], policy)
     assert set(metrics) >= {"reward/loss", "reward/acc_goal", "reward/acc_replay", "reward/mean_logit_goal"}
+    # without the accuracy pass: the same step, only the loss reported
+    pick = rng.integers(0, 64, size=16)
+    assert set(model.update_classifier(goals[pick], negatives[pick], policy, accuracy=False)) == {"reward/loss"}
     test_goals, test_negatives = model.logits(goal_like(rng, 32)), model.logits(replay_like(rng, 32))
     assert test_goals.min() > test_negatives.max()
     if not model.airl:  # plain BCE: f itself is the classifier
