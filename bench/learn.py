@@ -77,8 +77,9 @@ def first_step_reaching(rows: list[dict[str, float]], name: str, threshold: floa
     return next((int(row["step"]) for row in rows if row.get(name, -1) >= threshold), None)
 
 
-def reached_success(store: Store, run_id: int, rate: float) -> bool:
-    return any(m.value >= rate for m in store.metrics(run_id=run_id, names=["eval/success_rate"]))
+def reached_success(store: Store, run_id: int, rate: float, after_step: int = 0) -> bool:
+    metrics = store.metrics(run_id=run_id, since_step=after_step, names=["eval/success_rate"])
+    return any(m.value >= rate for m in metrics)
 
 
 def _interrupt(signum: int, _frame: object) -> None:
@@ -107,14 +108,21 @@ def main() -> int:
         "--threads", type=int, default=None,
         help="torch threads of the learner (OMP_NUM_THREADS); 1 lets two runs share 2 cores without oversubscription",
     )  # fmt: skip
+    parser.add_argument(
+        "--resume", action="store_true",
+        help="continue the stopped run in --out from its checkpoint (wall time adds to the earlier summary's)",
+    )  # fmt: skip
+    parser.add_argument("--until-step", type=int, default=None, help="stop the run once it reaches this env step")
     args = parser.parse_args()
 
     name = f"{args.task}-{args.algorithm}-seed{args.seed}"
     out = args.out or ROOT / "bench" / "out" / name
     out.mkdir(parents=True, exist_ok=True)
     data_dir = out / "data"
-    if data_dir.exists():
-        raise SystemExit(f"{data_dir} exists: remove it or choose another --out")
+    if data_dir.exists() and not args.resume:
+        raise SystemExit(f"{data_dir} exists: remove it, choose another --out or --resume it")
+    if args.resume and not (out / "summary.json").exists():
+        raise SystemExit(f"nothing to resume in {out}: no summary.json")
     config = TrainConfig(
         env_id=TASKS[args.task], algorithm=args.algorithm, seed=args.seed, total_steps=args.total_steps,
         query_every=args.query_every, query_budget=args.query_budget, **parse_overrides(args.set),
@@ -129,14 +137,20 @@ def main() -> int:
     database_url = f"sqlite:///{(data_dir / 'raq.sqlite3').resolve()}"
     upgrade(database_url)
     store = Store(database_url)
-    goal_set_id = add_simulated_goal_set(store, task=args.task, name=f"{args.task} goals", count=args.goals)
-    run = store.create_run(
-        name=name, env_id=config.env_id, algorithm=config.algorithm, config=config.to_dict(), seed=config.seed,
-        goal_set_id=goal_set_id, total_steps=config.total_steps,
-    )  # fmt: skip
+    earlier_minutes = 0.0
+    if args.resume:  # the one run of this --out, as it was stopped
+        run = store.resume_run(run_id=store.list_runs()[0].id)
+        earlier_minutes = float(json.loads((out / "summary.json").read_text())["wall_minutes"])
+    else:
+        goal_set_id = add_simulated_goal_set(store, task=args.task, name=f"{args.task} goals", count=args.goals)
+        run = store.create_run(
+            name=name, env_id=config.env_id, algorithm=config.algorithm, config=config.to_dict(), seed=config.seed,
+            goal_set_id=goal_set_id, total_steps=config.total_steps,
+        )  # fmt: skip
+    resumed_at = int(run.step or 0)
 
     raq = [sys.executable, "-m", "app.cli"]
-    logs = {key: (out / f"{key}.log").open("w") for key in ("serve", "oracle", "learn")}
+    logs = {key: (out / f"{key}.log").open("a" if args.resume else "w") for key in ("serve", "oracle", "learn")}
     serve = subprocess.Popen(
         raq + ["serve", "--port", str(port)], env=env, stdout=logs["serve"], stderr=subprocess.STDOUT
     )
@@ -163,8 +177,12 @@ def main() -> int:
         while learner.poll() is None:
             if time.monotonic() - started > args.max_minutes * 60:
                 stop_reason = f"time limit of {args.max_minutes} min reached"
-            elif args.stop_at_success is not None and reached_success(store, run.id, args.stop_at_success):
+            elif args.stop_at_success is not None and reached_success(
+                store, run.id, args.stop_at_success, after_step=resumed_at
+            ):
                 stop_reason = f"eval success rate reached {args.stop_at_success}"
+            elif args.until_step is not None and int(store.get_run(run_id=run.id).step or 0) >= args.until_step:
+                stop_reason = f"env step {args.until_step} reached"
             if stop_reason:
                 print(f"{stop_reason}: stopping the run", flush=True)
                 store.request_stop(run_id=run.id)
@@ -223,7 +241,7 @@ def main() -> int:
         "final_success_rate": success[-1][1] if success else None,
         "queries_asked": counts["asked"],
         "queries_yes": counts["yes"],
-        "wall_minutes": round(wall_seconds / 60, 1),
+        "wall_minutes": round(earlier_minutes + wall_seconds / 60, 1),
         "updates_per_second": round(sum(updates) / len(updates), 2) if updates else None,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
