@@ -226,15 +226,22 @@ def test_replay_stores_each_frame_once_and_shifts_like_drq() -> None:
         np.testing.assert_array_equal(shifted[k], padded[k, dy : dy + SIZE, dx : dx + SIZE])
 
 
+def raq_model_and_replay(
+    rng: np.random.Generator, capacity: int, transitions: int
+) -> tuple[RewardModel, ReplayBuffer, np.ndarray]:
+    """A raq reward model and a replay of `transitions` consecutive transitions over fresh frames."""
+    model = RewardModel(tiny(algorithm="raq"), rng)
+    replay = ReplayBuffer(capacity=capacity, image_shape=(SIZE, SIZE, 3), action_dim=2)
+    frames = replay_like(rng, transitions + 1)
+    slots = [replay.add_frame(f) for f in frames]
+    for i in range(transitions):
+        replay.add(slots[i], np.zeros(2, np.float32), slots[i + 1], False, None)
+    return model, replay, frames
+
+
 def test_reward_cache_is_exact_per_classifier_version() -> None:
     rng = np.random.default_rng(0)
-    config = tiny(algorithm="raq")
-    model = RewardModel(config, rng)
-    replay = ReplayBuffer(capacity=50, image_shape=(SIZE, SIZE, 3), action_dim=2)
-    frames = replay_like(rng, 21)
-    slots = [replay.add_frame(f) for f in frames]
-    for i in range(20):
-        replay.add(slots[i], np.zeros(2, np.float32), slots[i + 1], False, None)
+    model, replay, frames = raq_model_and_replay(rng, capacity=50, transitions=20)
     indices = np.array([0, 5, 5, 19])
     np.testing.assert_allclose(model.rewards(replay, indices), model.logits(frames[indices + 1]), rtol=1e-5)
     model.update_classifier(goal_like(rng, 8), replay_like(rng, 8))
@@ -243,18 +250,12 @@ def test_reward_cache_is_exact_per_classifier_version() -> None:
 
 def test_reward_cache_is_not_stale_after_a_ring_wrap_or_a_checkpoint_round_trip() -> None:
     rng = np.random.default_rng(0)
-    config = tiny(algorithm="raq")
-    model = RewardModel(config, rng)
-    replay = ReplayBuffer(capacity=5, image_shape=(SIZE, SIZE, 3), action_dim=2)
-    frames = replay_like(rng, 6)
-    slots = [replay.add_frame(f) for f in frames]
-    for i in range(5):
-        replay.add(slots[i], np.zeros(2, np.float32), slots[i + 1], False, None)
+    model, replay, frames = raq_model_and_replay(rng, capacity=5, transitions=5)
     everything = np.arange(5)
     np.testing.assert_allclose(model.rewards(replay, everything), model.logits(frames[1:]), rtol=1e-5)
     # the ring wraps: transition 0 is reused for a new (s, s') with the classifier unchanged
     newer = goal_like(rng, 1)[0]
-    replay.add(slots[5], np.zeros(2, np.float32), replay.add_frame(newer), False, None)
+    replay.add(int(replay.next_slot[4]), np.zeros(2, np.float32), replay.add_frame(newer), False, None)
     rewards = model.rewards(replay, np.array([0, 1]))
     np.testing.assert_allclose(rewards[0], model.logits(newer[None])[0], rtol=1e-5)
     np.testing.assert_allclose(rewards[1], model.logits(frames[2:3])[0], rtol=1e-5)
@@ -265,7 +266,7 @@ def test_reward_cache_is_not_stale_after_a_ring_wrap_or_a_checkpoint_round_trip(
     model.update_classifier(goal_like(rng, 8), replay_like(rng, 8))
     after = model.rewards(replay, everything).copy()
     assert not np.allclose(cached, after)
-    restored_model = RewardModel(config, np.random.default_rng(1))
+    restored_model = RewardModel(model.config, np.random.default_rng(1))
     restored_replay = ReplayBuffer(capacity=5, image_shape=(SIZE, SIZE, 3), action_dim=2)
     # the fresh objects' own cache: computed by the untrained net at version 0 (what the load must invalidate)
     restored_replay.add(0, np.zeros(2, np.float32), 1, False, None)
