@@ -2,8 +2,12 @@
 
 One "update" is what the learner does per environment step after warm-up: sample a batch (with the
 default's random shift), compute rewards r = f_psi(s') with the current classifier (cached per classifier
-version), one SAC step (critic, actor, alpha, target); the classifier's own steps (10 per 1000 env steps,
-each invalidating the reward cache) are amortised in. Environment stepping is not included.
+version), one SAC step (critic, actor, alpha, target). The classifier's own steps are amortised in as the
+training loop runs them: in a burst before each block of updates, classifier_steps * updates / epoch_steps of
+them (the loop: classifier_steps at every epoch_steps-th env step), so every block starts with the whole reward
+cache stale and fills it as the loop does (at the default 300 updates over 20,000 transitions, about 65
+f_psi evaluations per update; the loop does 50 per update with 50K transitions, 92 with 100K).
+Environment stepping is not included.
 
     python bench/learner_speed.py [--updates 300] [--device cpu|cuda] [--threads N]
 """
@@ -19,7 +23,6 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from learner.config import TrainConfig  # noqa: E402
-from learner.networks import to_float  # noqa: E402
 from learner.replay import ReplayBuffer, shift_pad  # noqa: E402
 from learner.reward import RewardModel  # noqa: E402
 from learner.sac import SACAgent  # noqa: E402
@@ -48,30 +51,30 @@ def measure(config: TrainConfig, updates: int, transitions: int) -> float:
     replay = filled_replay(config, transitions, rng)
     pad = shift_pad(config.image_size) if config.augmentation == "random_shift" else 0
     device = agent.device
-    classifier_every = max(1, round(config.epoch_steps / max(config.classifier_steps, 1)))
+    classifier_steps_per_block = round(config.classifier_steps * updates / config.epoch_steps)
 
-    def one_update(index: int) -> None:
-        if config.classifier_steps and index % classifier_every == 0:  # amortised: classifier_steps per epoch
+    def classifier_burst(steps: int) -> None:
+        for index in range(steps):  # as train.py's _train_classifier: accuracies on the last step only
             positives = reward_model.sample_positives(config.classifier_batch_size)
             negatives = replay.sample_next_frames(rng, config.classifier_batch_size)
-            reward_model.update_classifier(positives, negatives, agent.policy, accuracy=False)  # as train.py
+            reward_model.update_classifier(positives, negatives, agent.policy, accuracy=index == steps - 1)
+
+    def one_update() -> None:
         batch = replay.sample(rng, config.batch_size, pad)
         rewards = reward_model.rewards(replay, batch.indices)
-        agent.update(
-            to_float(batch.obs, device), torch.from_numpy(batch.action).to(device),
-            torch.from_numpy(rewards).to(device), to_float(batch.next_obs, device),
-            torch.from_numpy(batch.not_done).to(device),
-        )  # fmt: skip
+        agent.update_from_arrays(batch.obs, batch.action, rewards, batch.next_obs, batch.not_done)
 
-    for index in range(10):
-        one_update(index)
+    classifier_burst(1)
+    for _ in range(10):
+        one_update()
     best = 0.0
     for _block in range(2):
         if device.type == "cuda":
             torch.cuda.synchronize()
         start = time.perf_counter()
-        for index in range(updates):
-            one_update(index)
+        classifier_burst(classifier_steps_per_block)
+        for _ in range(updates):
+            one_update()
         if device.type == "cuda":
             torch.cuda.synchronize()
         best = max(best, updates / (time.perf_counter() - start))

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from numpy.lib.stride_tricks import as_strided
 
 
 @dataclass
@@ -24,24 +25,35 @@ class Batch:
     not_done: np.ndarray
 
 
+def edge_pad(images: np.ndarray, pad: int) -> np.ndarray:
+    """np.pad(mode="edge") on the two spatial axes of NHWC images, in five vectorised copies (np.pad is slower)."""
+    count, height, width, channels = images.shape
+    out = np.empty((count, height + 2 * pad, width + 2 * pad, channels), dtype=images.dtype)
+    out[:, pad:-pad, pad:-pad] = images
+    out[:, :pad, pad:-pad] = images[:, :1]
+    out[:, -pad:, pad:-pad] = images[:, -1:]
+    out[:, :, :pad] = out[:, :, pad : pad + 1]
+    out[:, :, -pad:] = out[:, :, -pad - 1 : -pad]
+    return out
+
+
 def random_shift(images: np.ndarray, pad: int, rng: np.random.Generator) -> np.ndarray:
     """DrQ random shift: replicate-pad by `pad` and crop back at a random offset, per image, on uint8 NHWC.
 
-    Images that drew the same offset are cropped together: (2 pad + 1)^2 slice copies instead of a Python
-    loop over the batch or a per-pixel gather.
+    The crops are one gather from a (count, offset_y, offset_x, H, W, C) strided view of the padded batch, so
+    no Python loop over images or offsets.
     """
     if pad <= 0:
         return images
-    count, height, width, _ = images.shape
-    padded = np.pad(images, ((0, 0), (pad, pad), (pad, pad), (0, 0)), mode="edge")
+    count, height, width, channels = images.shape
+    padded = edge_pad(images, pad)
     offsets = rng.integers(0, 2 * pad + 1, size=(count, 2))
-    out = np.empty_like(images)
-    codes = offsets[:, 0] * (2 * pad + 1) + offsets[:, 1]
-    for code in np.unique(codes):
-        members = np.flatnonzero(codes == code)
-        dy, dx = divmod(int(code), 2 * pad + 1)
-        out[members] = padded[members, dy : dy + height, dx : dx + width]
-    return out
+    batch_stride, row_stride, column_stride, channel_stride = padded.strides
+    crops = as_strided(
+        padded, (count, 2 * pad + 1, 2 * pad + 1, height, width, channels),
+        (batch_stride, row_stride, column_stride, row_stride, column_stride, channel_stride), writeable=False,
+    )  # fmt: skip
+    return crops[np.arange(count), offsets[:, 0], offsets[:, 1]]
 
 
 def shift_pad(image_size: int) -> int:

@@ -5,10 +5,12 @@ vice / vice_raq: AIRL discriminator D(s, a) = sigmoid(f_psi(s) - log pi(a|s)) (t
 raq / naive_classifier: plain sigmoid cross-entropy on f_psi(s).
 Mixup (Eq. mixup): lambda ~ Beta(alpha, alpha) per sample, each sample mixed with a random permutation of the
 combined batch, images and labels alike.
-The SAC reward is the logit f_psi(s') itself (no log pi, no normalisation), always computed in fp32.
+The SAC reward is the logit f_psi(s') itself (no log pi, no normalisation). f_psi runs under the config's
+precision like the SAC networks (bf16 autocast: convs and matmuls in bf16, weights, loss and logits in fp32).
 """
 
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from typing import Any
 
 import numpy as np
@@ -35,7 +37,7 @@ def mixup(
     count = images.shape[0]
     lam = torch.from_numpy(rng.beta(alpha, alpha, size=count).astype(np.float32)).to(images.device)
     perm = torch.from_numpy(rng.permutation(count)).to(images.device)
-    mixed_images = torch.lerp(images[perm], images, lam.view(-1, 1, 1, 1))
+    mixed_images = torch.lerp(images[perm], images, lam.view(-1, 1, 1, 1).to(images.dtype))
     mixed_labels = torch.lerp(labels[perm], labels, lam)
     return mixed_images, mixed_labels
 
@@ -78,10 +80,19 @@ class RewardModel:
         self.answered_negatives = np.concatenate([self.answered_negatives, image[None]])
 
     # ------------------------------------------------------------------ inference
+    def autocast(self) -> AbstractContextManager[Any]:
+        enabled = self.config.precision == "bf16"
+        return torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=enabled)
+
+    def images(self, images: np.ndarray) -> torch.Tensor:
+        """uint8 NHWC -> f_psi's input (bf16 at once under bf16 precision, as autocast would cast it)."""
+        return to_float(images, self.device, torch.bfloat16 if self.config.precision == "bf16" else torch.float32)
+
     @torch.no_grad()
     def logits(self, images: np.ndarray, chunk: int = 1024) -> np.ndarray:
-        """f_psi for uint8 NHWC images, fp32, in chunks."""
-        out = [self.net(to_float(images[i : i + chunk], self.device)) for i in range(0, len(images), chunk)]
+        """f_psi for uint8 NHWC images (fp32 logits), in chunks."""
+        with self.autocast():
+            out = [self.net(self.images(images[i : i + chunk])) for i in range(0, len(images), chunk)]
         return torch.cat(out).cpu().numpy() if out else np.zeros(0, dtype=np.float32)
 
     def rewards(self, replay: ReplayBuffer, indices: np.ndarray) -> np.ndarray:
@@ -124,10 +135,11 @@ class RewardModel:
         logit, against the mixed label. (Mixing the log pi terms of the two sources instead would not be the
         discriminator of Eq. D at any input.) Without mixup this is exactly Alg. 2 lines 9-12.
         """
-        images = to_float(np.concatenate([positives, negatives]), self.device)
+        images = self.images(np.concatenate([positives, negatives]))
         labels = torch.cat([torch.ones(len(positives)), torch.zeros(len(negatives))]).to(self.device)
         mixed_images, mixed_labels = mixup(images, labels, self.config.mixup_alpha, self.rng)
-        logits, _, _ = self.discriminator_logits(mixed_images, policy)
+        with self.autocast():
+            logits, _, _ = self.discriminator_logits(mixed_images, policy)
         loss = F.binary_cross_entropy_with_logits(logits, mixed_labels)
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -141,7 +153,8 @@ class RewardModel:
     @torch.no_grad()
     def _accuracy(self, images: torch.Tensor, n_positive: int, policy: Policy | None) -> dict[str, float]:
         """The discriminator's accuracy on the unmixed batch, and mean f_psi per class."""
-        logits, f, log_pi = self.discriminator_logits(images, policy)
+        with self.autocast():
+            logits, f, log_pi = self.discriminator_logits(images, policy)
         metrics = {
             "reward/acc_goal": (logits[:n_positive] > 0).float().mean().item(),
             "reward/acc_replay": (logits[n_positive:] < 0).float().mean().item(),

@@ -61,6 +61,12 @@ class SACAgent:
             modules["critic_target"] = self.critic_target
         return modules
 
+    def images(self, images: np.ndarray) -> torch.Tensor:
+        """uint8 NHWC images -> the networks' input: bf16 at once under bf16 precision (the dtype autocast would
+        cast them to for the first conv anyway), else float32."""
+        dtype = torch.bfloat16 if self.config.precision == "bf16" else torch.float32
+        return to_float(images, self.device, dtype)
+
     def autocast(self) -> AbstractContextManager[Any]:
         enabled = self.config.precision == "bf16"
         return torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=enabled)
@@ -81,10 +87,20 @@ class SACAgent:
 
     def act(self, observation: np.ndarray, deterministic: bool = False) -> np.ndarray:
         """One uint8 HWC observation -> an action in [-1, 1]^dim(A)."""
-        action, _ = self.policy(to_float(observation[None], self.device), deterministic)
+        action, _ = self.policy(self.images(observation[None]), deterministic)
         return action[0].cpu().numpy()
 
     # ------------------------------------------------------------------ updates
+    def update_from_arrays(
+        self, obs: np.ndarray, action: np.ndarray, reward: np.ndarray, next_obs: np.ndarray, not_done: np.ndarray
+    ) -> dict[str, float]:
+        """`update` on a replay batch as numpy arrays (uint8 NHWC images)."""
+        device = self.device
+        return self.update(
+            self.images(obs), torch.from_numpy(action).to(device), torch.from_numpy(reward).to(device),
+            self.images(next_obs), torch.from_numpy(not_done).to(device),
+        )  # fmt: skip
+
     def update(
         self, obs: torch.Tensor, action: torch.Tensor, reward: torch.Tensor, next_obs: torch.Tensor,
         not_done: torch.Tensor,
@@ -166,6 +182,8 @@ class SACAgent:
         return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        if "q1.0.weight" in state["critic"]:  # written before the twin Q MLPs became one ensemble
+            state["critic_opt"] = _ensemble_optimizer_state(state["critic_opt"], state["critic"])
         for name, module in self.modules().items():
             module.load_state_dict(state[name])
         with torch.no_grad():
@@ -173,3 +191,37 @@ class SACAgent:
         self.critic_opt.load_state_dict(state["critic_opt"])
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.alpha_opt.load_state_dict(state["alpha_opt"])
+
+
+def _ensemble_optimizer_state(optimizer: dict[str, Any], critic: dict[str, torch.Tensor]) -> dict[str, Any]:
+    """The critic optimizer's Adam state from before the ensemble layout, for the ensemble's parameters.
+
+    Its parameters were the critic's (own encoders, q1's 6 tensors, q2's 6 tensors, in state-dict order) then
+    the shared encoder's; the ensemble keeps that order with q1 and q2 stacked into 3 weights and 3 biases."""
+    names = list(critic)
+    first_q = names.index("q1.0.weight")
+    group = optimizer["param_groups"][0]
+    ids = group["params"]
+    moved = {name: optimizer["state"].get(ids[index]) for index, name in enumerate(names)}
+    new_states = [moved[name] for name in names[:first_q]]
+    for sequential_index in (0, 2, 4):
+        for kind in ("weight", "bias"):
+            pair = [moved[f"q{q}.{sequential_index}.{kind}"] for q in (1, 2)]
+            if pair[0] is None:
+                new_states.append(None)
+                continue
+
+            def as_ensemble(tensor: torch.Tensor, kind: str = kind) -> torch.Tensor:
+                return tensor.t() if kind == "weight" else tensor[None]
+
+            one, two = pair
+            new_states.append({
+                key: one[key] if key == "step" else torch.stack([as_ensemble(one[key]), as_ensemble(two[key])])
+                for key in one
+            })  # fmt: skip
+    new_states += [optimizer["state"].get(index) for index in ids[len(names) :]]
+    new_ids = list(range(len(new_states)))
+    return {
+        "state": {index: value for index, value in zip(new_ids, new_states, strict=True) if value is not None},
+        "param_groups": [{**group, "params": new_ids}],
+    }

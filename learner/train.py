@@ -39,7 +39,6 @@ from learner.envs import (
     scale_action,
     success_of,
 )
-from learner.networks import to_float
 from learner.queries import QuerySelector, digest
 from learner.replay import ReplayBuffer, shift_pad
 from learner.reward import AIRL_ALGORITHMS, CLASSIFIER_ALGORITHMS, RewardModel
@@ -251,15 +250,10 @@ class Trainer:
 
     # ================================================================== SAC
     def _sac_updates(self) -> None:
-        device = self.agent.device
         for _ in range(self.config.updates_per_step):
             batch = self.replay.sample(self.rng, self.config.batch_size, self.pad)
             rewards = self._rewards(batch.indices)
-            metrics = self.agent.update(
-                to_float(batch.obs, device), torch.from_numpy(batch.action).to(device),
-                torch.from_numpy(rewards).to(device), to_float(batch.next_obs, device),
-                torch.from_numpy(batch.not_done).to(device),
-            )  # fmt: skip
+            metrics = self.agent.update_from_arrays(batch.obs, batch.action, rewards, batch.next_obs, batch.not_done)
             metrics["reward/batch_mean"] = float(rewards.mean())
             for name, value in metrics.items():
                 self.update_sums[name] += value

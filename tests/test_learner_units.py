@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 
 from learner.config import TrainConfig
-from learner.networks import squashed_gaussian_sample, to_float
+from learner.networks import mlp, squashed_gaussian_sample, to_float
 from learner.queries import QuerySelector
 from learner.replay import ReplayBuffer, random_shift
 from learner.reward import RewardModel, mixup
@@ -202,6 +202,39 @@ def test_critic_target_bootstraps_through_non_terminal_transitions(shared: bool)
     torch.manual_seed(123)
     metrics, _ = agent.update_critic(obs, action, reward, next_obs, torch.zeros(16))
     assert metrics["critic/target_mean"] == pytest.approx(reward.mean().item(), rel=1e-5, abs=1e-6)
+
+
+def test_a_checkpoint_from_before_the_twin_q_ensemble_loads_with_the_same_q_values_and_adam_state() -> None:
+    """Runs checkpointed when q1 and q2 were two nn.Sequential MLPs resume: both Q's and their Adam moments."""
+    torch.manual_seed(0)
+    config = tiny(precision="fp32")
+    agent = SACAgent(config, action_dim=2)
+    old = torch.nn.Module()
+    old.q1, old.q2 = mlp(agent.encoder.output_dim + 2, 32, 1), mlp(agent.encoder.output_dim + 2, 32, 1)
+    optimizer = torch.optim.Adam([*old.parameters(), *agent.encoder.parameters()], lr=1e-3)
+    action = torch.rand(8, 2)
+    inputs = torch.cat([agent.encoder(agent.images(replay_like(np.random.default_rng(1), 8))), action], -1)
+    (old.q1(inputs).sum() + 2 * old.q2(inputs).sum()).backward()
+    optimizer.step()
+    features = inputs[:, :-2].detach()
+    inputs = inputs.detach()
+    state = agent.state_dict()
+    state.update(critic=old.state_dict(), critic_target=old.state_dict(), critic_opt=optimizer.state_dict())
+    restored = SACAgent(config, action_dim=2)
+    restored.load_state_dict(state)
+    with torch.no_grad():
+        q1, q2 = restored.critic(features, action)
+        torch.testing.assert_close(q1, old.q1(inputs).squeeze(-1))
+        torch.testing.assert_close(q2, old.q2(inputs).squeeze(-1))
+    moments = restored.critic_opt.state[restored.critic.layers[1].weight]["exp_avg"]
+    torch.testing.assert_close(moments[0], optimizer.state[old.q1[2].weight]["exp_avg"].t())
+    torch.testing.assert_close(moments[1], optimizer.state[old.q2[2].weight]["exp_avg"].t())
+    encoder_moments = restored.critic_opt.state[restored.encoder.projection[0].weight]["exp_avg"]
+    torch.testing.assert_close(encoder_moments, optimizer.state[agent.encoder.projection[0].weight]["exp_avg"])
+    rng = np.random.default_rng(0)
+    obs, next_obs = restored.images(replay_like(rng, 16)), restored.images(replay_like(rng, 16))
+    metrics = restored.update(obs, torch.rand(16, 2), torch.ones(16), next_obs, torch.ones(16))
+    assert math.isfinite(metrics["critic/loss"])
 
 
 # ---------------------------------------------------------------------------------------------- replay
