@@ -9,12 +9,13 @@ cache stale and fills it as the loop does (at the default 300 updates over 20,00
 f_psi evaluations per update; the loop does 50 per update with 50K transitions, 92 with 100K).
 Environment stepping is not included.
 
-    python bench/learner_speed.py [--updates 300] [--device cpu|cuda] [--threads N]
+    python bench/learner_speed.py [--updates 300] [--blocks 2] [--device cpu|cuda] [--threads N]
 """
 
 import argparse
 import sys
 import time
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -41,8 +42,20 @@ def filled_replay(config: TrainConfig, transitions: int, rng: np.random.Generato
     return replay
 
 
-def measure(config: TrainConfig, updates: int, transitions: int) -> float:
-    """Updates per second, best of two timed blocks after a warm-up."""
+def matmul_gflops(seconds: float = 2.0) -> float:
+    """bf16 matmul throughput of this machine now (the issue measured 357 GFLOP/s peak on an idle 2-core VM):
+    printed beside updates/s so that a slow moment of a shared machine shows as such."""
+    a, b = torch.randn(1024, 1024, dtype=torch.bfloat16), torch.randn(1024, 1024, dtype=torch.bfloat16)
+    torch.mm(a, b)
+    count, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        torch.mm(a, b)
+        count += 1
+    return 2 * 1024**3 * count / (time.perf_counter() - start) / 1e9
+
+
+def measure(config: TrainConfig, updates: int, transitions: int, blocks: int) -> tuple[float, dict[str, float]]:
+    """(updates per second, milliseconds per update by part) of the best of `blocks` timed blocks."""
     rng = np.random.default_rng(0)
     torch.manual_seed(0)
     agent = SACAgent(config, action_dim=2)
@@ -51,58 +64,82 @@ def measure(config: TrainConfig, updates: int, transitions: int) -> float:
     replay = filled_replay(config, transitions, rng)
     pad = shift_pad(config.image_size) if config.augmentation == "random_shift" else 0
     device = agent.device
-    classifier_steps_per_block = round(config.classifier_steps * updates / config.epoch_steps)
+    updates_per_epoch = config.epoch_steps * config.updates_per_step
+    classifier_steps_per_block = (
+        max(1, round(config.classifier_steps * updates / updates_per_epoch)) if config.classifier_steps else 0
+    )
+    parts: dict[str, float] = defaultdict(float)
+
+    def timed(part: str, start: float) -> float:
+        """Adds the time since `start` to `part` (on a GPU not at all: a sync per part would cost overlap)."""
+        if device.type != "cpu":
+            return start
+        now = time.perf_counter()
+        parts[part] += now - start
+        return now
 
     def classifier_burst(steps: int) -> None:
+        start = time.perf_counter()
         for index in range(steps):  # as train.py's _train_classifier: accuracies on the last step only
             positives = reward_model.sample_positives(config.classifier_batch_size)
             negatives = replay.sample_next_frames(rng, config.classifier_batch_size)
             reward_model.update_classifier(positives, negatives, agent.policy, accuracy=index == steps - 1)
+        timed("classifier steps", start)
 
     def one_update() -> None:
+        start = time.perf_counter()
         batch = replay.sample(rng, config.batch_size, pad)
+        start = timed("sample + shift", start)
         rewards = reward_model.rewards(replay, batch.indices)
+        start = timed("rewards f_psi(s')", start)
         agent.update_from_arrays(batch.obs, batch.action, rewards, batch.next_obs, batch.not_done)
+        timed("SAC step", start)
 
     classifier_burst(1)
     for _ in range(10):
         one_update()
-    best = 0.0
-    for _block in range(2):
-        if device.type == "cuda":
-            torch.cuda.synchronize()
+    best, best_parts = 0.0, {}
+    for _block in range(blocks):
+        parts.clear()
         start = time.perf_counter()
         classifier_burst(classifier_steps_per_block)
         for _ in range(updates):
             one_update()
         if device.type == "cuda":
             torch.cuda.synchronize()
-        best = max(best, updates / (time.perf_counter() - start))
-    return best
+        rate = updates / (time.perf_counter() - start)
+        if rate > best:
+            best, best_parts = rate, {part: 1000 * total / updates for part, total in parts.items()}
+    return best, best_parts
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--updates", type=int, default=300, help="updates per timed block (two blocks)")
+    parser.add_argument("--updates", type=int, default=300, help="updates per timed block (see --blocks)")
     parser.add_argument("--transitions", type=int, default=20_000, help="replay size sampled from")
+    parser.add_argument("--blocks", type=int, default=2, help="timed blocks per configuration (the best counts)")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, device {args.device}, {torch.get_num_threads()} threads, batch 256, 48x48")
+    print(f"this machine now: {matmul_gflops():.0f} GFLOP/s bf16 matmul (1024x1024)", flush=True)
     precision = "fp32" if args.device != "cpu" else None
     paper = TrainConfig.paper(device=args.device)
     default = TrainConfig(device=args.device, **({"precision": precision} if precision else {}))
     results = {}
     for name, config in (("paper", paper), ("default", default)):
-        results[name] = measure(config, args.updates, args.transitions)
+        results[name], parts = measure(config, args.updates, args.transitions, args.blocks)
         print(
             f"{name:8s} updates/s {results[name]:7.2f}   (shared_encoder={config.shared_encoder}, "
             f"augmentation={config.augmentation}, precision={config.precision})",
             flush=True,
         )
+        if parts:
+            print("         ms per update: " + ", ".join(f"{part} {ms:.1f}" for part, ms in parts.items()), flush=True)
     print(f"ratio default/paper: {results['default'] / results['paper']:.2f}x")
+    print(f"this machine now: {matmul_gflops():.0f} GFLOP/s bf16 matmul (1024x1024)")
     return 0
 
 

@@ -71,7 +71,7 @@ class TrainConfig:
     augmentation: Literal["none", "random_shift"] = "random_shift"
     """Image augmentation for SAC updates: DrQ's random shift by up to 4 pixels (scaled to image size)."""
     precision: Literal["fp32", "bf16"] = "bf16"
-    """Autocast dtype for network forward passes on the CPU."""
+    """Autocast dtype of every network (SAC and f_psi); bf16 also hands them bf16 images (what autocast casts to)."""
     device: str = "cpu"
     """Torch device ("cpu" or "cuda")."""
 

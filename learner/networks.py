@@ -181,7 +181,9 @@ class RewardClassifier(nn.Module):
         self.head = mlp(self.encoder.output_dim, hidden_dim, 1)
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
-        return self.head(self.encoder(images)).float().squeeze(-1)
+        hidden = self.head[:-1](self.encoder(images))
+        with torch.autocast(hidden.device.type, enabled=False):  # the logit itself in fp32 (256 -> 1: free)
+            return self.head[-1](hidden.float()).squeeze(-1)
 
 
 def squashed_gaussian_sample(

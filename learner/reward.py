@@ -6,7 +6,8 @@ raq / naive_classifier: plain sigmoid cross-entropy on f_psi(s).
 Mixup (Eq. mixup): lambda ~ Beta(alpha, alpha) per sample, each sample mixed with a random permutation of the
 combined batch, images and labels alike.
 The SAC reward is the logit f_psi(s') itself (no log pi, no normalisation). f_psi runs under the config's
-precision like the SAC networks (bf16 autocast: convs and matmuls in bf16, weights, loss and logits in fp32).
+precision like the SAC networks (bf16 autocast: convs and hidden layers in bf16; weights, the last layer and the
+loss in fp32, so logits, rewards and query scores are not rounded to bf16).
 """
 
 from collections.abc import Callable
@@ -37,8 +38,9 @@ def mixup(
     count = images.shape[0]
     lam = torch.from_numpy(rng.beta(alpha, alpha, size=count).astype(np.float32)).to(images.device)
     perm = torch.from_numpy(rng.permutation(count)).to(images.device)
-    mixed_images = torch.lerp(images[perm], images, lam.view(-1, 1, 1, 1).to(images.dtype))
-    mixed_labels = torch.lerp(labels[perm], labels, lam)
+    lam = lam.to(images.dtype)  # bf16 images: the labels mix with the same (rounded) lambda
+    mixed_images = torch.lerp(images[perm], images, lam.view(-1, 1, 1, 1))
+    mixed_labels = torch.lerp(labels[perm], labels, lam.to(labels.dtype))
     return mixed_images, mixed_labels
 
 

@@ -183,7 +183,7 @@ class SACAgent:
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if "q1.0.weight" in state["critic"]:  # written before the twin Q MLPs became one ensemble
-            state["critic_opt"] = _ensemble_optimizer_state(state["critic_opt"], state["critic"])
+            state = {**state, "critic_opt": _ensemble_optimizer_state(state["critic_opt"], state["critic"])}
         for name, module in self.modules().items():
             module.load_state_dict(state[name])
         with torch.no_grad():
@@ -200,6 +200,7 @@ def _ensemble_optimizer_state(optimizer: dict[str, Any], critic: dict[str, torch
     the shared encoder's; the ensemble keeps that order with q1 and q2 stacked into 3 weights and 3 biases."""
     names = list(critic)
     first_q = names.index("q1.0.weight")
+    assert len(optimizer["param_groups"]) == 1, "the critic optimizer has one parameter group"
     group = optimizer["param_groups"][0]
     ids = group["params"]
     moved = {name: optimizer["state"].get(ids[index]) for index, name in enumerate(names)}
@@ -207,7 +208,8 @@ def _ensemble_optimizer_state(optimizer: dict[str, Any], critic: dict[str, torch
     for sequential_index in (0, 2, 4):
         for kind in ("weight", "bias"):
             pair = [moved[f"q{q}.{sequential_index}.{kind}"] for q in (1, 2)]
-            if pair[0] is None:
+            if pair[0] is None or pair[1] is None:  # Adam has state for both Q's or (before any step) neither
+                assert pair[0] is pair[1] is None
                 new_states.append(None)
                 continue
 

@@ -1,5 +1,6 @@
 """Learner parts on small synthetic data: losses, mixup, the AIRL logit, replay, query selection."""
 
+import copy
 import math
 
 import numpy as np
@@ -10,7 +11,7 @@ import torch.nn.functional as F
 from learner.config import TrainConfig
 from learner.networks import mlp, squashed_gaussian_sample, to_float
 from learner.queries import QuerySelector
-from learner.replay import ReplayBuffer, random_shift
+from learner.replay import ReplayBuffer, edge_pad, random_shift
 from learner.reward import RewardModel, mixup
 from learner.sac import SACAgent
 
@@ -64,19 +65,24 @@ def test_classifier_separates_goals_from_negatives(algorithm: str) -> None:
         assert (test_goals > 0).mean() > 0.9 and (test_negatives < 0).mean() > 0.9
 
 
-def test_mixup_mixes_images_and_labels_with_the_same_lambda() -> None:
-    images = torch.rand(8, 3, SIZE, SIZE)
+@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
+def test_mixup_mixes_images_and_labels_with_the_same_lambda(dtype: torch.dtype) -> None:
+    images = torch.rand(8, 3, SIZE, SIZE).to(dtype)
     labels = torch.tensor([1.0] * 4 + [0.0] * 4)
     mixed_images, mixed_labels = mixup(images, labels, 1.0, np.random.default_rng(3))
     replay_rng = np.random.default_rng(3)
-    lam = torch.from_numpy(replay_rng.beta(1.0, 1.0, size=8).astype(np.float32))
+    lam = torch.from_numpy(replay_rng.beta(1.0, 1.0, size=8).astype(np.float32)).to(dtype).float()  # as rounded
     perm = torch.from_numpy(replay_rng.permutation(8))
-    expected = lam.view(-1, 1, 1, 1) * images + (1 - lam.view(-1, 1, 1, 1)) * images[perm]
-    torch.testing.assert_close(mixed_images, expected)
+    wide = images.float()
+    expected = lam.view(-1, 1, 1, 1) * wide + (1 - lam.view(-1, 1, 1, 1)) * wide[perm]
+    assert mixed_images.dtype == dtype and mixed_labels.dtype == torch.float32
+    tolerance = {"atol": 1e-2, "rtol": 1e-2} if dtype == torch.bfloat16 else {}
+    torch.testing.assert_close(mixed_images.float(), expected, **tolerance)
     torch.testing.assert_close(mixed_labels, lam * labels + (1 - lam) * labels[perm])
     assert ((mixed_labels >= 0) & (mixed_labels <= 1)).all()
-    low, high = torch.minimum(images, images[perm]), torch.maximum(images, images[perm])
-    assert ((mixed_images >= low - 1e-6) & (mixed_images <= high + 1e-6)).all()
+    low, high = torch.minimum(wide, wide[perm]), torch.maximum(wide, wide[perm])
+    slack = 1e-2 if dtype == torch.bfloat16 else 1e-6
+    assert ((mixed_images.float() >= low - slack) & (mixed_images.float() <= high + slack)).all()
     assert not torch.equal(mixed_labels, labels)  # it did mix
     same, same_labels = mixup(images, labels, 0.0, np.random.default_rng(3))
     assert same is images and same_labels is labels
@@ -141,7 +147,7 @@ def test_critic_fits_the_soft_bellman_target_and_alpha_moves(shared: bool) -> No
     config = tiny(shared_encoder=shared, critic_lr=3e-3, precision="bf16" if shared else "fp32")
     agent = SACAgent(config, action_dim=2)
     rng = np.random.default_rng(0)
-    obs, next_obs = to_float(replay_like(rng, 16)), to_float(replay_like(rng, 16))
+    obs, next_obs = agent.images(replay_like(rng, 16)), agent.images(replay_like(rng, 16))  # bf16 when shared
     action = torch.from_numpy(rng.uniform(-1, 1, (16, 2)).astype(np.float32))
     reward, terminal = torch.full((16,), 2.0), torch.zeros(16)  # y = r on terminal transitions
     first = agent.update_critic(obs, action, reward, next_obs, terminal)[0]["critic/loss"]
@@ -204,33 +210,59 @@ def test_critic_target_bootstraps_through_non_terminal_transitions(shared: bool)
     assert metrics["critic/target_mean"] == pytest.approx(reward.mean().item(), rel=1e-5, abs=1e-6)
 
 
-def test_a_checkpoint_from_before_the_twin_q_ensemble_loads_with_the_same_q_values_and_adam_state() -> None:
-    """Runs checkpointed when q1 and q2 were two nn.Sequential MLPs resume: both Q's and their Adam moments."""
+@pytest.mark.parametrize("shared", [True, False])
+def test_a_checkpoint_from_before_the_twin_q_ensemble_loads_with_the_same_q_values_and_adam_state(shared: bool) -> None:
+    """Runs checkpointed when q1 and q2 were two nn.Sequential MLPs resume: both Q's, the target Q's and every
+    Adam state entry, with the shared encoder (default) and with the critic's own two encoders (paper)."""
     torch.manual_seed(0)
-    config = tiny(precision="fp32")
+    config = tiny(shared_encoder=shared, precision="fp32")
     agent = SACAgent(config, action_dim=2)
-    old = torch.nn.Module()
-    old.q1, old.q2 = mlp(agent.encoder.output_dim + 2, 32, 1), mlp(agent.encoder.output_dim + 2, 32, 1)
-    optimizer = torch.optim.Adam([*old.parameters(), *agent.encoder.parameters()], lr=1e-3)
-    action = torch.rand(8, 2)
-    inputs = torch.cat([agent.encoder(agent.images(replay_like(np.random.default_rng(1), 8))), action], -1)
-    (old.q1(inputs).sum() + 2 * old.q2(inputs).sum()).backward()
+    old = torch.nn.Module()  # the critic as it was: [encoders,] q1, q2
+    if not shared:
+        old.encoders = copy.deepcopy(agent.critic.encoders)
+    feature_dim = agent.encoder.output_dim if shared else agent.critic.encoders[0].output_dim
+    old.q1, old.q2 = mlp(feature_dim + 2, 32, 1), mlp(feature_dim + 2, 32, 1)
+    old_target = copy.deepcopy(old)
+    with torch.no_grad():
+        for parameter in old_target.parameters():
+            parameter.add_(0.1 * torch.randn_like(parameter))
+    shared_params = list(agent.encoder.parameters()) if shared else []
+    optimizer = torch.optim.Adam([*old.parameters(), *shared_params], lr=1e-3)
+    images, action = agent.images(replay_like(np.random.default_rng(1), 8)), torch.rand(8, 2)
+
+    def old_q(critic: torch.nn.Module) -> tuple[torch.Tensor, torch.Tensor]:
+        h1 = h2 = agent.encoder(images) if shared else None
+        if not shared:
+            h1, h2 = critic.encoders[0](images), critic.encoders[1](images)
+        return critic.q1(torch.cat([h1, action], -1)).squeeze(-1), critic.q2(torch.cat([h2, action], -1)).squeeze(-1)
+
+    q1, q2 = old_q(old)
+    (q1.sum() + 2 * q2.sum()).backward()
     optimizer.step()
-    features = inputs[:, :-2].detach()
-    inputs = inputs.detach()
     state = agent.state_dict()
-    state.update(critic=old.state_dict(), critic_target=old.state_dict(), critic_opt=optimizer.state_dict())
+    state.update(critic=old.state_dict(), critic_target=old_target.state_dict(), critic_opt=optimizer.state_dict())
     restored = SACAgent(config, action_dim=2)
     restored.load_state_dict(state)
     with torch.no_grad():
-        q1, q2 = restored.critic(features, action)
-        torch.testing.assert_close(q1, old.q1(inputs).squeeze(-1))
-        torch.testing.assert_close(q2, old.q2(inputs).squeeze(-1))
-    moments = restored.critic_opt.state[restored.critic.layers[1].weight]["exp_avg"]
-    torch.testing.assert_close(moments[0], optimizer.state[old.q1[2].weight]["exp_avg"].t())
-    torch.testing.assert_close(moments[1], optimizer.state[old.q2[2].weight]["exp_avg"].t())
-    encoder_moments = restored.critic_opt.state[restored.encoder.projection[0].weight]["exp_avg"]
-    torch.testing.assert_close(encoder_moments, optimizer.state[agent.encoder.projection[0].weight]["exp_avg"])
+        for new_critic, old_critic in ((restored.critic, old), (restored.critic_target, old_target)):
+            for new_q, old_q_value in zip(
+                new_critic(restored._features(images), action), old_q(old_critic), strict=True
+            ):
+                torch.testing.assert_close(new_q, old_q_value)
+    adam = restored.critic_opt.state
+    for layer, sequential_index in enumerate((0, 2, 4)):
+        for member, old_mlp in enumerate((old.q1, old.q2)):
+            for kind, as_ensemble in (("weight", lambda t: t.t()), ("bias", lambda t: t[None])):
+                converted = adam[getattr(restored.critic.layers[layer], kind)]
+                original = optimizer.state[getattr(old_mlp[sequential_index], kind)]
+                assert set(converted) == set(original)
+                torch.testing.assert_close(converted["step"], original["step"])
+                for key in ("exp_avg", "exp_avg_sq"):
+                    torch.testing.assert_close(converted[key][member], as_ensemble(original[key]))
+    encoders = (restored.encoder, agent.encoder) if shared else (restored.critic.encoders, old.encoders)
+    for new_parameter, old_parameter in zip(encoders[0].parameters(), encoders[1].parameters(), strict=True):
+        for key in ("exp_avg", "exp_avg_sq"):
+            torch.testing.assert_close(adam[new_parameter][key], optimizer.state[old_parameter][key])
     rng = np.random.default_rng(0)
     obs, next_obs = restored.images(replay_like(rng, 16)), restored.images(replay_like(rng, 16))
     metrics = restored.update(obs, torch.rand(16, 2), torch.ones(16), next_obs, torch.ones(16))
@@ -255,6 +287,17 @@ def test_replay_stores_each_frame_once_and_shifts_like_drq() -> None:
     shifted = random_shift(frames, 2, np.random.default_rng(5))
     offsets = np.random.default_rng(5).integers(0, 5, size=(4, 2))
     padded = np.pad(frames, ((0, 0), (2, 2), (2, 2), (0, 0)), mode="edge")
+    for k, (dy, dx) in enumerate(offsets):
+        np.testing.assert_array_equal(shifted[k], padded[k, dy : dy + SIZE, dx : dx + SIZE])
+    for pad in (1, 2, 3, 4):  # corners included
+        expected = np.pad(frames, ((0, 0), (pad, pad), (pad, pad), (0, 0)), mode="edge")
+        np.testing.assert_array_equal(edge_pad(frames, pad), expected)
+    # every offset, the extreme ones included, over a larger batch
+    many = replay_like(rng, 200)
+    shifted = random_shift(many, 2, np.random.default_rng(7))
+    offsets = np.random.default_rng(7).integers(0, 5, size=(200, 2))
+    assert len({tuple(offset) for offset in offsets}) == 25
+    padded = np.pad(many, ((0, 0), (2, 2), (2, 2), (0, 0)), mode="edge")
     for k, (dy, dx) in enumerate(offsets):
         np.testing.assert_array_equal(shifted[k], padded[k, dy : dy + SIZE, dx : dx + SIZE])
 
