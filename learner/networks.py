@@ -5,6 +5,8 @@ with channels_last strides once per batch (`to_float`), which is the layout the 
 """
 
 import math
+from contextlib import AbstractContextManager
+from typing import Any
 
 import numpy as np
 import torch
@@ -28,6 +30,16 @@ def to_float(
     tensor = torch.from_numpy(np.ascontiguousarray(images)) if isinstance(images, np.ndarray) else images
     tensor = tensor.to(device, non_blocking=True).permute(0, 3, 1, 2)
     return tensor.to(dtype).div_(255.0)
+
+
+def input_dtype(precision: str) -> torch.dtype:
+    """The dtype networks take their images in: bf16 under bf16 precision (what autocast casts them to)."""
+    return torch.bfloat16 if precision == "bf16" else torch.float32
+
+
+def precision_autocast(precision: str, device: torch.device) -> AbstractContextManager[Any]:
+    """bf16 autocast on `device` under bf16 precision, else a disabled one."""
+    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
 
 
 def mlp(in_dim: int, hidden_dim: int, out_dim: int) -> nn.Sequential:

@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 
 from learner.config import TrainConfig
-from learner.networks import RewardClassifier, to_float
+from learner.networks import RewardClassifier, input_dtype, precision_autocast, to_float
 from learner.replay import ReplayBuffer
 
 Policy = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -83,12 +83,11 @@ class RewardModel:
 
     # ------------------------------------------------------------------ inference
     def autocast(self) -> AbstractContextManager[Any]:
-        enabled = self.config.precision == "bf16"
-        return torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=enabled)
+        return precision_autocast(self.config.precision, self.device)
 
     def images(self, images: np.ndarray) -> torch.Tensor:
-        """uint8 NHWC -> f_psi's input (bf16 at once under bf16 precision, as autocast would cast it)."""
-        return to_float(images, self.device, torch.bfloat16 if self.config.precision == "bf16" else torch.float32)
+        """uint8 NHWC -> f_psi's input (bf16 at once under bf16 precision)."""
+        return to_float(images, self.device, input_dtype(self.config.precision))
 
     @torch.no_grad()
     def logits(self, images: np.ndarray, chunk: int = 1024) -> np.ndarray:

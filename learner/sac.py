@@ -17,7 +17,16 @@ import torch
 import torch.nn.functional as F
 
 from learner.config import TrainConfig
-from learner.networks import Actor, ConvEncoder, Critic, SharedEncoder, squashed_gaussian_sample, to_float
+from learner.networks import (
+    Actor,
+    ConvEncoder,
+    Critic,
+    SharedEncoder,
+    input_dtype,
+    precision_autocast,
+    squashed_gaussian_sample,
+    to_float,
+)
 
 
 class SACAgent:
@@ -62,14 +71,11 @@ class SACAgent:
         return modules
 
     def images(self, images: np.ndarray) -> torch.Tensor:
-        """uint8 NHWC images -> the networks' input: bf16 at once under bf16 precision (the dtype autocast would
-        cast them to for the first conv anyway), else float32."""
-        dtype = torch.bfloat16 if self.config.precision == "bf16" else torch.float32
-        return to_float(images, self.device, dtype)
+        """uint8 NHWC images -> the networks' input (bf16 at once under bf16 precision)."""
+        return to_float(images, self.device, input_dtype(self.config.precision))
 
     def autocast(self) -> AbstractContextManager[Any]:
-        enabled = self.config.precision == "bf16"
-        return torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=enabled)
+        return precision_autocast(self.config.precision, self.device)
 
     @property
     def alpha(self) -> torch.Tensor:
