@@ -172,16 +172,25 @@ class Critic(nn.Module):
         return q[0], q[1]
 
 
+TWIN_MLP_INDICES = (0, 2, 4)
+"""Where the ensemble's layers 0, 1, 2 were in the old q1 / q2 nn.Sequential MLPs (Linear, ReLU, Linear, ...)."""
+
+
+def twin_to_ensemble(kind: str, q1_tensor: torch.Tensor, q2_tensor: torch.Tensor) -> torch.Tensor:
+    """One old nn.Linear tensor of q1 and of q2 (a weight, a bias, or an Adam moment of one) -> the ensemble's."""
+    if kind == "weight":  # nn.Linear stores (out, in); the ensemble (in, out)
+        return torch.stack([q1_tensor.t(), q2_tensor.t()])
+    return torch.stack([q1_tensor[None], q2_tensor[None]])
+
+
 def _twin_mlps_to_ensemble(state: dict[str, torch.Tensor], prefix: str, *_: object) -> None:
     """Checkpoints written before the ensemble layout (q1 and q2 as nn.Sequential MLPs) load unchanged."""
-    for layer, sequential_index in enumerate((0, 2, 4)):
-        old = [f"{prefix}q{q}.{sequential_index}." for q in (1, 2)]
-        if old[0] + "weight" not in state:
-            return
-        weights = [state.pop(name + "weight").t() for name in old]
-        biases = [state.pop(name + "bias")[None] for name in old]
-        state[f"{prefix}layers.{layer}.weight"] = torch.stack(weights)
-        state[f"{prefix}layers.{layer}.bias"] = torch.stack(biases)
+    for layer, sequential_index in enumerate(TWIN_MLP_INDICES):
+        for kind in ("weight", "bias"):
+            q1_name, q2_name = (f"{prefix}q{q}.{sequential_index}.{kind}" for q in (1, 2))
+            if q1_name not in state:
+                return
+            state[f"{prefix}layers.{layer}.{kind}"] = twin_to_ensemble(kind, state.pop(q1_name), state.pop(q2_name))
 
 
 class RewardClassifier(nn.Module):
@@ -193,9 +202,12 @@ class RewardClassifier(nn.Module):
         self.head = mlp(self.encoder.output_dim, hidden_dim, 1)
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
-        hidden = self.head[:-1](self.encoder(images))
+        *hidden_layers, logit_layer = self.head  # (unpacking, not slicing: no new Sequential per call)
+        hidden = self.encoder(images)
+        for layer in hidden_layers:
+            hidden = layer(hidden)
         with torch.autocast(hidden.device.type, enabled=False):  # the logit itself in fp32 (256 -> 1: free)
-            return self.head[-1](hidden.float()).squeeze(-1)
+            return logit_layer(hidden.float()).squeeze(-1)
 
 
 def squashed_gaussian_sample(

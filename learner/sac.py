@@ -18,6 +18,7 @@ import torch.nn.functional as F
 
 from learner.config import TrainConfig
 from learner.networks import (
+    TWIN_MLP_INDICES,
     Actor,
     ConvEncoder,
     Critic,
@@ -26,6 +27,7 @@ from learner.networks import (
     precision_autocast,
     squashed_gaussian_sample,
     to_float,
+    twin_to_ensemble,
 )
 
 
@@ -211,22 +213,16 @@ def _ensemble_optimizer_state(optimizer: dict[str, Any], critic: dict[str, torch
     ids = group["params"]
     moved = {name: optimizer["state"].get(ids[index]) for index, name in enumerate(names)}
     new_states = [moved[name] for name in names[:first_q]]
-    for sequential_index in (0, 2, 4):
+    for sequential_index in TWIN_MLP_INDICES:
         for kind in ("weight", "bias"):
-            pair = [moved[f"q{q}.{sequential_index}.{kind}"] for q in (1, 2)]
-            if pair[0] is None or pair[1] is None:  # Adam has state for both Q's or (before any step) neither
-                assert pair[0] is pair[1] is None
+            one, two = (moved[f"q{q}.{sequential_index}.{kind}"] for q in (1, 2))
+            if one is None or two is None:  # Adam has state for both Q's or (before any step) neither
+                assert one is two is None
                 new_states.append(None)
                 continue
-
-            def as_ensemble(tensor: torch.Tensor, kind: str = kind) -> torch.Tensor:
-                return tensor.t() if kind == "weight" else tensor[None]
-
-            one, two = pair
-            new_states.append({
-                key: one[key] if key == "step" else torch.stack([as_ensemble(one[key]), as_ensemble(two[key])])
-                for key in one
-            })  # fmt: skip
+            new_states.append(
+                {key: one[key] if key == "step" else twin_to_ensemble(kind, one[key], two[key]) for key in one}
+            )
     new_states += [optimizer["state"].get(index) for index in ids[len(names) :]]
     new_ids = list(range(len(new_states)))
     return {
