@@ -51,10 +51,15 @@ class SawyerMocapEnv(gym.Env[np.ndarray, np.ndarray]):
     hand_high: ClassVar[tuple[float, float, float]]
     hand_init: ClassVar[tuple[float, float, float]]
     camera_name: ClassVar[str] = "task_camera"
+    # Physics steps of TIMESTEP_S per env step: the time an action has to take effect.
     frame_skip: ClassVar[int] = FRAME_SKIP
     action_scale: ClassVar[float] = 0.02
     # How far the mocap target may lead the hand: bounds the pull when the hand is blocked by an object.
     max_target_lead: ClassVar[float] = 0.04
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.metadata = {**cls.metadata, "render_fps": round(1.0 / (TIMESTEP_S * cls.frame_skip))}
 
     def __init__(self, image_size: int = 48, render_mode: str | None = None, render_size: int = 256) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:

@@ -2,7 +2,7 @@
 
 Pusher: the scene is put straight into a success state (mug on the coaster with a little noise, hand at a varied
 place behind it). Door and picker: the scripted controller runs from a seeded reset until it succeeds, settles at a
-varied nearby pose (hook lifted a little; ball held at a point near the goal), and the final frame is taken.
+varied nearby pose (hook still in the handle; ball held at a point near the goal), and the final frame is taken.
 Every example is checked to be a success. The goal itself (coaster, 45 degrees, point above the table) is fixed in
 the model and never modified, so it is identical across examples.
 
@@ -27,6 +27,8 @@ from sim.scripted import scripted_action
 
 # Scripted episodes whose seed fails are skipped; give up after this many attempts per example asked for.
 MAX_ATTEMPTS_PER_EXAMPLE = 5
+# Scripted steps taken after the first success, before settling at a varied pose.
+SCRIPTED_STEPS_AFTER_SUCCESS = 5
 
 
 @dataclass(frozen=True)
@@ -62,8 +64,8 @@ def _settle_action(env: gymnasium.Env, target: np.ndarray) -> np.ndarray:
 def _scripted_success(env: gymnasium.Env, rng: np.random.Generator) -> bool:
     """Run the scripted controller until it succeeds, then settle at a varied nearby pose; True if still a success.
 
-    Picker: the held ball moves to a random point within 1.5 cm (per axis) of the goal point. Door: the hook rises
-    by up to 10 cm from the handle (the door stays where it was pulled to).
+    Picker: the held ball moves to a random point within 1.5 cm (per axis) of the goal point. Door: the hook, still in
+    the handle, moves up to 1.5 cm along the bar and 1 cm along the pull (the door follows a little).
     """
     for _ in range(MAX_EPISODE_STEPS):
         _, _, _, _, info = env.step(scripted_action(env))
@@ -71,11 +73,14 @@ def _scripted_success(env: gymnasium.Env, rng: np.random.Generator) -> bool:
             break
     else:
         return False
+    for _ in range(SCRIPTED_STEPS_AFTER_SUCCESS):  # let the controller finish its approach (door: to 45 degrees)
+        env.step(scripted_action(env))
     task_env = env.unwrapped
     if isinstance(task_env, VisualPickerEnv):
         target = task_env.goal_pos + rng.uniform(-0.015, 0.015, size=3)
     else:
-        target = task_env.hand_pos + np.array([*rng.uniform(-0.01, 0.01, size=2), rng.uniform(0.0, 0.1)])
+        # The hook stays in the handle: it slides a little along the bar and in the pull direction.
+        target = task_env.hand_pos + np.array([rng.uniform(-0.015, 0.015), rng.uniform(-0.01, 0.01), 0.0])
     for _ in range(int(rng.integers(4, 9))):
         env.step(_settle_action(env, target))
     return bool(task_env.get_info()["success"])

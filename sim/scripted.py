@@ -57,23 +57,31 @@ def pusher_action(env: VisualPusherEnv) -> np.ndarray:
 
 
 def door_action(env: VisualDoorEnv) -> np.ndarray:
-    """Drop the hook into the gap behind the handle bar, then pull the handle along the door's arc to 45 degrees."""
-    hand, gap, angle = env.hand_pos, env.handle_pos, env.door_angle
-    step = env.action_scale
-    hook_depth = gap[2] - 0.04
-    hooked = np.linalg.norm(hand[:2] - gap[:2]) < 0.02 and hand[2] < gap[2] - 0.015
-    if hooked:
-        next_angle = min(angle + 0.25, env.target_angle)
-        target = env.handle_pos_at(next_angle)
-        target[2] = hook_depth
-        return _toward(target, hand, step)
-    if np.linalg.norm(hand[:2] - gap[:2]) > 0.008:
-        # Travel above the handle, high enough for the hook to clear the bar.
-        target = np.array([gap[0], gap[1], max(gap[2] + 0.05, min(hand[2], gap[2] + 0.15))])
-        if hand[2] < gap[2] + 0.03:
-            target[:2] = hand[:2]
-        return _toward(target, hand, step)
-    return _toward(np.array([gap[0], gap[1], hook_depth]), hand, step)
+    """Reach over the handle, lower the hook's tip into the slot behind the bar, then pull straight back to 45 degrees.
+
+    The pull is along -y at a fixed x, as the original's scripted goals did: the long bar keeps the tip in the slot
+    while the door swings. The hand keeps its x where a straight pull reaches 45 degrees before the tip runs off the
+    bar's free end, else it moves there first.
+    """
+    hand, angle, step = env.hand_pos, env.door_angle, env.action_scale
+    x = float(np.clip(hand[0], *DOOR_PULL_X))
+    if env.is_hooked():
+        # Slow down near the goal (the angle moves about 0.1 rad per 2 cm pulled); hold x against the bar's push.
+        pull = float(np.clip(5.0 * (env.target_angle - angle), -1.0, 1.0))
+        return np.array([np.clip((x - hand[0]) / step, -1.0, 1.0), -pull, 0.0])
+    along = env.slot_along(np.array([x, 0.0, 0.0]), angle)[0]
+    slot = env.slot_point(angle, along)
+    clear = slot[2] + 0.05  # the tip passes over the bar this high
+    if np.linalg.norm(hand[:2] - slot[:2]) > 0.006:
+        # Over the slot first (rising first when low, so the hook does not knock the bar or the door).
+        if hand[2] < clear - 0.01:
+            return _toward(np.array([hand[0], hand[1], clear]), hand, step)
+        return _toward(np.array([slot[0], slot[1], clear]), hand, step)
+    return _toward(np.array([slot[0], slot[1], slot[2] - 0.035]), hand, step)
+
+
+# Hand x (m) from which a straight pull opens the door to 45 degrees with the tip still behind the bar.
+DOOR_PULL_X = (-0.06, 0.0)
 
 
 def picker_action(env: VisualPickerEnv) -> np.ndarray:

@@ -26,6 +26,7 @@ def test_goal_examples_are_varied_successes_of_one_fixed_goal(task: str) -> None
     assert all(not np.array_equal(images[0], other) for other in images[1:])
     if task == "door":
         assert all(abs(example.info["door_angle"] - np.pi / 4) <= 0.1 for example in examples)
+        assert all(example.info["hooked"] == 1.0 for example in examples)  # the hook is still in the handle
     else:
         goals = np.array([example.info["goal_pos"] for example in examples])
         assert np.array_equal(goals, np.repeat(goals[:1], len(goals), axis=0))
@@ -55,6 +56,10 @@ def test_write_goal_pngs_and_cli(tmp_path) -> None:
 
 
 @pytest.mark.parametrize("task", list(sim.TASKS))
-def test_scripted_controller_solves_the_task_and_random_actions_do_not(task: str) -> None:
-    assert success_rate(task, "scripted", episodes=3, seed=0) == 1.0
-    assert success_rate(task, "random", episodes=2, seed=0) == 0.0
+def test_scripted_controller_solves_every_episode(task: str) -> None:
+    assert success_rate(task, "scripted", episodes=20, seed=0) == 1.0
+
+
+@pytest.mark.parametrize("task", list(sim.TASKS))
+def test_uniformly_random_actions_succeed_in_at_most_2_percent_of_episodes(task: str) -> None:
+    assert success_rate(task, "random", episodes=100, seed=0) <= 0.02
