@@ -24,6 +24,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from learner.config import TrainConfig  # noqa: E402
+from learner.networks import resolve_precision  # noqa: E402
 from learner.replay import ReplayBuffer, shift_pad  # noqa: E402
 from learner.reward import RewardModel  # noqa: E402
 from learner.sac import SACAgent  # noqa: E402
@@ -42,16 +43,26 @@ def filled_replay(config: TrainConfig, transitions: int, rng: np.random.Generato
     return replay
 
 
-def matmul_gflops(seconds: float = 2.0) -> float:
-    """bf16 matmul throughput of this machine now (the issue measured 357 GFLOP/s peak on an idle 2-core VM):
-    printed beside updates/s so that a slow moment of a shared machine shows as such."""
-    a, b = torch.randn(1024, 1024, dtype=torch.bfloat16), torch.randn(1024, 1024, dtype=torch.bfloat16)
+def matmul_gflops(dtype: torch.dtype = torch.bfloat16, seconds: float = 2.0) -> float:
+    """Matmul throughput of this machine now in `dtype` (the issue measured 357 GFLOP/s bf16 peak on an idle 2-core
+    VM with AVX512-BF16; a CPU with AVX2 only emulates bf16 at about 1 GFLOP/s): printed beside updates/s so that a
+    slow moment of a shared machine, or a machine of another kind, shows as such."""
+    a, b = torch.randn(1024, 1024).to(dtype), torch.randn(1024, 1024).to(dtype)
     torch.mm(a, b)
     count, start = 0, time.perf_counter()
-    while time.perf_counter() - start < seconds:
+    while count < 2 or time.perf_counter() - start < seconds:
         torch.mm(a, b)
         count += 1
     return 2 * 1024**3 * count / (time.perf_counter() - start) / 1e9
+
+
+def machine_line() -> str:
+    """This machine's fp32 and bf16 matmul GFLOP/s now, and the precision "auto" picks on it."""
+    fp32, bf16 = matmul_gflops(torch.float32), matmul_gflops(torch.bfloat16)
+    return (
+        f"this machine now: {fp32:.0f} GFLOP/s fp32, {bf16:.0f} GFLOP/s bf16 matmul (1024x1024); "
+        f"precision auto -> {resolve_precision('auto')}"
+    )
 
 
 def measure(config: TrainConfig, updates: int, transitions: int, blocks: int) -> tuple[float, dict[str, float]]:
@@ -124,7 +135,7 @@ def main() -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, device {args.device}, {torch.get_num_threads()} threads, batch 256, 48x48")
-    print(f"this machine now: {matmul_gflops():.0f} GFLOP/s bf16 matmul (1024x1024)", flush=True)
+    print(machine_line(), flush=True)
     precision = "fp32" if args.device != "cpu" else None
     paper = TrainConfig.paper(device=args.device)
     default = TrainConfig(device=args.device, **({"precision": precision} if precision else {}))
@@ -133,13 +144,14 @@ def main() -> int:
         results[name], parts = measure(config, args.updates, args.transitions, args.blocks)
         print(
             f"{name:8s} updates/s {results[name]:7.2f}   (shared_encoder={config.shared_encoder}, "
-            f"augmentation={config.augmentation}, precision={config.precision})",
+            f"augmentation={config.augmentation}, precision={config.precision}"
+            f" -> {resolve_precision(config.precision, torch.device(args.device).type)})",
             flush=True,
         )
         if parts:
             print("         ms per update: " + ", ".join(f"{part} {ms:.1f}" for part, ms in parts.items()), flush=True)
     print(f"ratio default/paper: {results['default'] / results['paper']:.2f}x")
-    print(f"this machine now: {matmul_gflops():.0f} GFLOP/s bf16 matmul (1024x1024)")
+    print(machine_line())
     return 0
 
 

@@ -70,8 +70,8 @@ class TrainConfig:
     """Shared encoder only: Linear + LayerNorm + tanh of the conv features to this size (SAC-AE, DrQ); 0: none."""
     augmentation: Literal["none", "random_shift"] = "random_shift"
     """Image augmentation for SAC updates: DrQ's random shift by up to 4 pixels (scaled to image size)."""
-    precision: Literal["fp32", "bf16"] = "bf16"
-    """Autocast dtype of every network (SAC and f_psi); bf16 also hands them bf16 images (what autocast casts to)."""
+    precision: Literal["auto", "fp32", "bf16"] = "auto"
+    """Autocast dtype of every network (SAC and f_psi); bf16 also hands them bf16 images; auto: bf16 where faster."""
     device: str = "cpu"
     """Torch device ("cpu" or "cuda")."""
 

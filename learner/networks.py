@@ -4,7 +4,9 @@ Images enter as uint8 NHWC (how envs and the replay buffer hold them) and are tu
 with channels_last strides once per batch (`to_float`), which is the layout the CPU conv kernels prefer.
 """
 
+import functools
 import math
+import time
 from contextlib import AbstractContextManager
 from typing import Any
 
@@ -32,14 +34,49 @@ def to_float(
     return tensor.to(dtype).div_(255.0)
 
 
-def input_dtype(precision: str) -> torch.dtype:
+PRECISIONS = ("auto", "fp32", "bf16")
+# "auto" picks bf16 on a CPU only when its bf16 matmuls beat fp32 by this factor: CPUs without native bf16
+# (AVX2 only, no AVX512-BF16 / AMX) emulate it some 50x slower than fp32.
+BF16_MIN_SPEEDUP = 1.2
+
+
+@functools.cache
+def resolve_precision(precision: str, device_type: str = "cpu") -> str:
+    """"fp32" or "bf16": `precision` itself, or for "auto" what this machine runs faster (measured once a process).
+
+    CUDA: bf16 where the GPU supports it. CPU: a 256 x 1152 x 256 matmul (the encoder-to-MLP layer's shape) timed in
+    fp32 and in bf16; bf16 when it is at least BF16_MIN_SPEEDUP times faster."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"unknown precision {precision!r}; choose from {PRECISIONS}")
+    if precision != "auto":
+        return precision
+    if device_type == "cuda":
+        return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
+    seconds = {dtype: _matmul_seconds(dtype) for dtype in (torch.float32, torch.bfloat16)}
+    return "bf16" if seconds[torch.float32] >= BF16_MIN_SPEEDUP * seconds[torch.bfloat16] else "fp32"
+
+
+def _matmul_seconds(dtype: torch.dtype, repeats: int = 5) -> float:
+    """Best time of one (256, 1152) @ (1152, 256) matmul in `dtype` on the CPU."""
+    a, b = torch.randn(256, 1152).to(dtype), torch.randn(1152, 256).to(dtype)
+    a @ b  # warm-up
+    best = math.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        a @ b
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def input_dtype(precision: str, device: torch.device) -> torch.dtype:
     """The dtype networks take their images in: bf16 under bf16 precision (what autocast casts them to)."""
-    return torch.bfloat16 if precision == "bf16" else torch.float32
+    return torch.bfloat16 if resolve_precision(precision, device.type) == "bf16" else torch.float32
 
 
 def precision_autocast(precision: str, device: torch.device) -> AbstractContextManager[Any]:
     """bf16 autocast on `device` under bf16 precision, else a disabled one."""
-    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
+    enabled = resolve_precision(precision, device.type) == "bf16"
+    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=enabled)
 
 
 def mlp(in_dim: int, hidden_dim: int, out_dim: int) -> nn.Sequential:

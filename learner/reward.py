@@ -87,7 +87,7 @@ class RewardModel:
 
     def images(self, images: np.ndarray) -> torch.Tensor:
         """uint8 NHWC -> f_psi's input (bf16 at once under bf16 precision)."""
-        return to_float(images, self.device, input_dtype(self.config.precision))
+        return to_float(images, self.device, input_dtype(self.config.precision, self.device))
 
     @torch.no_grad()
     def logits(self, images: np.ndarray, chunk: int = 1024) -> np.ndarray:

@@ -74,7 +74,7 @@ class SACAgent:
 
     def images(self, images: np.ndarray) -> torch.Tensor:
         """uint8 NHWC images -> the networks' input (bf16 at once under bf16 precision)."""
-        return to_float(images, self.device, input_dtype(self.config.precision))
+        return to_float(images, self.device, input_dtype(self.config.precision, self.device))
 
     def autocast(self) -> AbstractContextManager[Any]:
         return precision_autocast(self.config.precision, self.device)

@@ -39,6 +39,7 @@ from learner.envs import (
     scale_action,
     success_of,
 )
+from learner.networks import resolve_precision
 from learner.queries import QuerySelector, digest
 from learner.replay import ReplayBuffer, shift_pad
 from learner.reward import AIRL_ALGORITHMS, CLASSIFIER_ALGORITHMS, RewardModel
@@ -126,7 +127,11 @@ class Trainer:
     # ================================================================== the loop
     def train(self) -> str:
         cfg = self.config
-        self._event(f"learner {self.worker} setting up: {cfg.algorithm} on {cfg.env_id}, {cfg.total_steps} steps")
+        precision = resolve_precision(cfg.precision, self.agent.device.type)
+        self._event(
+            f"learner {self.worker} setting up: {cfg.algorithm} on {cfg.env_id}, {cfg.total_steps} steps, "
+            f"precision {precision}" + (" (auto: the faster on this machine)" if cfg.precision == "auto" else "")
+        )
         stored_step = int(self.store.get_run(run_id=self.run_id).step or 0)
         # each setup phase can take long (a large checkpoint): beat after each so no one reclaims the run
         self._load_goals()

@@ -9,7 +9,15 @@ import torch
 import torch.nn.functional as F
 
 from learner.config import TrainConfig
-from learner.networks import mlp, squashed_gaussian_sample, to_float
+from learner.networks import (
+    _matmul_seconds,
+    input_dtype,
+    mlp,
+    precision_autocast,
+    resolve_precision,
+    squashed_gaussian_sample,
+    to_float,
+)
 from learner.queries import QuerySelector
 from learner.replay import ReplayBuffer, edge_pad, random_shift
 from learner.reward import RewardModel, mixup
@@ -431,3 +439,21 @@ def test_selector_state_round_trips() -> None:
     restored.load_state_dict(selector.state_dict())
     assert restored.asked == selector.asked
     assert not restored.offer(5.0, images[2], lambda: np.ones((8, 8, 3), np.uint8), env_step=9)
+
+
+def test_precision_auto_resolves_to_what_this_machine_runs_faster() -> None:
+    assert resolve_precision("fp32") == "fp32" and resolve_precision("bf16", "cuda") == "bf16"
+    chosen = resolve_precision("auto")
+    assert chosen in ("fp32", "bf16")
+    fp32, bf16 = _matmul_seconds(torch.float32), _matmul_seconds(torch.bfloat16)
+    if bf16 * 3 < fp32:  # clearly faster in bf16 (AVX512-BF16 / AMX)
+        assert chosen == "bf16"
+    if fp32 * 3 < bf16:  # bf16 emulated (AVX2 only)
+        assert chosen == "fp32"
+    device = torch.device("cpu")
+    assert input_dtype("auto", device) == (torch.bfloat16 if chosen == "bf16" else torch.float32)
+    with precision_autocast("auto", device):
+        out = torch.nn.Linear(8, 8)(torch.randn(2, 8))
+    assert out.dtype == (torch.bfloat16 if chosen == "bf16" else torch.float32)
+    with pytest.raises(ValueError, match="unknown precision"):
+        resolve_precision("fp16")
