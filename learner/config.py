@@ -6,8 +6,7 @@ This module imports neither torch nor the store, so the web app can validate a r
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any, Literal, get_args, get_origin, get_type_hints
 
-Algorithm = Literal["vice_raq", "vice", "raq", "naive_classifier", "sparse"]
-ALGORITHMS: tuple[str, ...] = ("vice_raq", "vice", "raq", "naive_classifier", "sparse")
+from learner.algorithms import ALGORITHMS
 
 
 def _choice_fields() -> dict[str, tuple[Any, ...]]:
@@ -22,8 +21,8 @@ class TrainConfig:
 
     env_id: str = "VisualPusher-v0"
     """Gymnasium id, or "module:EnvId", of an env whose observation is an RGB uint8 image."""
-    algorithm: Algorithm = "vice_raq"
-    """Reward method: vice_raq, vice, raq, naive_classifier or sparse (ground-truth success)."""
+    algorithm: str = "vice_raq"
+    """Reward method, one of learner.algorithms.ALGORITHM_SPECS: vice_raq, vice, raq, naive_classifier, sparse."""
     seed: int = 0
     """Seed for torch, numpy and the env."""
     image_size: int = 48
@@ -148,6 +147,8 @@ class TrainConfig:
             errors.append(("tau", "must be in (0, 1]"))
         if self.mixup_alpha < 0:
             errors.append(("mixup_alpha", "must not be negative"))
+        if self.algorithm not in ALGORITHMS:
+            errors.append(("algorithm", f"must be one of {', '.join(ALGORITHMS)}"))
         for name, choices in _choice_fields().items():
             if getattr(self, name) not in choices:
                 errors.append((name, f"must be one of {', '.join(map(str, choices))}"))

@@ -18,15 +18,13 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from learner.algorithms import ALGORITHM_SPECS
 from learner.config import TrainConfig
 from learner.networks import RewardClassifier, input_dtype, precision_autocast, to_float
 from learner.replay import ReplayBuffer
 
 Policy = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 """float images -> (a ~ pi(.|s), log pi(a|s)), without gradients."""
-
-CLASSIFIER_ALGORITHMS = ("vice_raq", "vice", "raq", "naive_classifier")
-AIRL_ALGORITHMS = ("vice_raq", "vice")
 
 
 def mixup(
@@ -58,7 +56,7 @@ class RewardModel:
         self.net = RewardClassifier(config.image_size, config.conv_filters, config.hidden_dim, config.encoder)
         self.net.to(self.device, memory_format=torch.channels_last)
         self.opt = torch.optim.Adam(self.net.parameters(), lr=config.classifier_lr)
-        self.airl = config.algorithm in AIRL_ALGORITHMS
+        self.airl = ALGORITHM_SPECS[config.algorithm].airl
         shape = (0, config.image_size, config.image_size, 3)
         self.goals = np.zeros(shape, dtype=np.uint8)
         self.answered_positives = np.zeros(shape, dtype=np.uint8)

@@ -176,13 +176,14 @@ def test_answers_reach_the_example_sets(setup: tuple[Settings, Store, int], algo
         query = store.post_query(run_id=run_id, env_step=1, model_png=encode_png(image), display_png=b"x", score=1.0)
         store.answer_query(query_id=query.id, success=answer)
     negatives_before = len(model.negatives)
-    trainer._read_answers()
+    assert trainer.queries is not None
+    trainer.queries.read_answers()
     assert len(model.positives) == 5 and np.array_equal(model.positives[-1], yes_image)
     if algorithm == "raq":  # RAQ: a no is a negative
         assert len(model.negatives) == negatives_before + 1 and np.array_equal(model.negatives[-1], no_image)
     else:  # VICE-RAQ: no's are already among the replay negatives
         assert len(model.negatives) == negatives_before
-    trainer._read_answers()  # the cursor: nothing is taken twice
+    trainer.queries.read_answers()  # the cursor: nothing is taken twice
     assert len(model.positives) == 5
     trainer.close()
 
@@ -352,7 +353,7 @@ def test_interrupt_stops_an_evaluation(setup: tuple[Settings, Store, int]) -> No
         trainer.close()
     assert len(steps) == 3
     assert store.metrics(run_id=run_id) == [] and store.latest_rollout(run_id=run_id) is None
-    assert trainer.evaluated_step == -1  # not done: a resume at this step evaluates again
+    assert trainer.counters.evaluated_step == -1  # not done: a resume at this step evaluates again
 
 
 def test_setup_beats_and_a_missing_checkpoint_restarts_with_a_warning(

@@ -1,0 +1,56 @@
+"""The reward methods of the paper's comparison (Sec. VI) as one table: what each one does, in one place.
+
+The training loop, the reward classifier and the web app read these flags; none of them checks an algorithm's
+name. This module imports neither torch nor the store, so the web app can read it.
+"""
+
+from dataclasses import dataclass
+from typing import Literal
+
+Negatives = Literal["replay", "pool"]
+
+
+@dataclass(frozen=True)
+class AlgorithmSpec:
+    """What one reward method does (original-implementation.md, the per-method table)."""
+
+    label: str
+    """How the pages name it."""
+    classifier: bool
+    """The reward is a classifier f_psi learned from goal examples (False: the env's success flag, `sparse`)."""
+    airl: bool = False
+    """f_psi is trained as VICE's AIRL discriminator sigmoid(f_psi(s) - log pi(a|s)), else plain cross-entropy."""
+    queries: bool = False
+    """Asks the person about the observation it rates likeliest to be a success (Sec. IV-A)."""
+    negatives: Negatives = "replay"
+    """replay: uniform samples of the policy's replay; pool: first-epoch observations plus the 'no' answers."""
+    train_once: bool = False
+    """f_psi is trained once, after the first epoch, then frozen (the naive classifier)."""
+
+    @property
+    def needs_goals(self) -> bool:
+        """Runs need a goal set with at least one goal example."""
+        return self.classifier
+
+    @property
+    def needs_success(self) -> bool:
+        """The env must report info['success'] (it is the reward)."""
+        return not self.classifier
+
+
+ALGORITHM_SPECS: dict[str, AlgorithmSpec] = {
+    "vice_raq": AlgorithmSpec(
+        "VICE-RAQ: goal photos + active yes/no queries (recommended)", classifier=True, airl=True, queries=True
+    ),
+    "vice": AlgorithmSpec("VICE: goal photos only, no queries", classifier=True, airl=True),
+    "raq": AlgorithmSpec(
+        "RAQ: goal photos + queries, negatives from the first epoch", classifier=True, queries=True, negatives="pool"
+    ),
+    "naive_classifier": AlgorithmSpec(
+        "Naive classifier: trained once on goal photos", classifier=True, negatives="pool", train_once=True
+    ),
+    "sparse": AlgorithmSpec("Sparse: the simulator's true success reward (no goal photos)", classifier=False),
+}
+"""Every reward method, the recommended one first."""
+
+ALGORITHMS: tuple[str, ...] = tuple(ALGORITHM_SPECS)

@@ -1,0 +1,119 @@
+"""Run control of one claimed run: its checkpointed counters, heartbeats, stop requests, interrupts, events.
+
+The learner holds a run only while its heartbeats are accepted. A refused heartbeat (the run was stopped, or
+taken over by another learner after this one went silent) is noticed at the next env step; an interrupt (Ctrl-C,
+SIGTERM) checkpoints and queues the run again so the next learner resumes it there.
+"""
+
+import logging
+import threading
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from app.store import RunStatus, Store
+
+logger = logging.getLogger("learner.train")
+
+
+class Outcome:
+    """How training a claimed run ended."""
+
+    FINISHED = "finished"
+    STOPPED = "stopped"
+    REQUEUED = "requeued"
+    LOST = "lost"
+
+
+@dataclass
+class Counters:
+    """The loop's counters that a checkpoint keeps (its keys are the checkpoint's)."""
+
+    step: int = 0
+    """Env steps taken."""
+    total_updates: int = 0
+    """SAC updates done."""
+    answer_cursor: int = 0
+    """The answer sequence number read up to: answers after it are new."""
+    naive_trained: bool = False
+    """The naive classifier's one-off training is done (it is frozen from then on)."""
+    evaluated_step: int = -1
+    """The step of the last completed evaluation."""
+
+    def state_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.step, self.total_updates = int(state["step"]), int(state["total_updates"])
+        self.answer_cursor, self.naive_trained = int(state["answer_cursor"]), bool(state["naive_trained"])
+        self.evaluated_step = int(state.get("evaluated_step", self.step))
+
+
+class RunControl:
+    """Heartbeats, stop and interrupt checks and progress events for one run held by `worker`."""
+
+    def __init__(
+        self, store: Store, *, run_id: int, worker: str, counters: Counters, heartbeat_seconds: float,
+        interrupt: threading.Event,
+    ) -> None:  # fmt: skip
+        self.store, self.run_id, self.worker = store, run_id, worker
+        self.counters, self.heartbeat_seconds, self.interrupt = counters, heartbeat_seconds, interrupt
+        self.step_known = False  # until the checkpoint is read, heartbeats leave the run's stored step alone
+        self.last_beat = 0.0
+        self.beat_refused = False
+
+    @property
+    def interrupted(self) -> bool:
+        return self.interrupt.is_set()
+
+    def beat(self, status: str | None = None) -> bool:
+        """Send a heartbeat (with the step, once known); False when the store refuses it."""
+        self.last_beat = time.monotonic()
+        step = self.counters.step if self.step_known else None
+        return self.store.heartbeat(run_id=self.run_id, worker=self.worker, step=step, status=status)
+
+    def tick(self) -> None:
+        """Heartbeat when one is due (also inside long steps); a refusal is acted on at the next env step."""
+        if time.monotonic() - self.last_beat >= self.heartbeat_seconds and not self.beat():
+            self.beat_refused = True
+
+    def take_refusal(self) -> bool:
+        """Whether a heartbeat was refused since the last call."""
+        refused, self.beat_refused = self.beat_refused, False
+        return refused
+
+    def requeue(self) -> str:
+        """After an interrupt (the caller checkpointed): queue the run again at this step."""
+        self.beat()  # the run shows the step it will resume at
+        self.store.set_run_status(
+            run_id=self.run_id, status=RunStatus.QUEUED, reason="learner interrupted", worker=self.worker
+        )
+        self.event(f"learner {self.worker} interrupted at step {self.counters.step}: run queued again, it resumes here")
+        return Outcome.REQUEUED
+
+    def still_held_and_stopping(self) -> bool:
+        """The run is still this worker's and a person asked it to stop (else it was taken from this worker)."""
+        run = self.store.get_run(run_id=self.run_id)
+        return run.worker == self.worker and run.status in RunStatus.ACTIVE and bool(run.stop_requested)
+
+    def stopped(self) -> str:
+        """After a stop request (the caller checkpointed): mark the run stopped."""
+        self.beat()
+        self.store.set_run_status(run_id=self.run_id, status=RunStatus.STOPPED, worker=self.worker)
+        return Outcome.STOPPED
+
+    def lost(self) -> str:
+        run = self.store.get_run(run_id=self.run_id)
+        self.event(f"learner {self.worker} no longer holds the run (now {run.status}, {run.worker}); leaving it")
+        return Outcome.LOST
+
+    def finished(self) -> str:
+        self.beat()
+        self.store.set_run_status(run_id=self.run_id, status=RunStatus.FINISHED, worker=self.worker)
+        return Outcome.FINISHED
+
+    def event(self, message: str, level: str = "info") -> None:
+        """A progress message for the UI (the run's events) and the learner's console."""
+        levels = {"error": logging.ERROR, "warning": logging.WARNING}
+        logger.log(levels.get(level, logging.INFO), "run %s: %s", self.run_id, message)
+        self.store.record_event(run_id=self.run_id, message=message, level=level)
