@@ -1,10 +1,14 @@
 """The web app: REST API under /api, HTML pages, static files. `create_app` is uvicorn's factory."""
 
+import math
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import Any
 
 from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.middleware.trustedhost import TrustedHostMiddleware
@@ -20,6 +24,17 @@ STATIC_DIR = ROOT / "static"
 # only names a browser can legitimately reach it by; any other Host is a DNS-rebinding page. "testserver"
 # is TestClient's host.
 LOOPBACK_HOST_NAMES = ["127.0.0.1", "localhost", "[::1]", "::1", "testserver"]
+
+
+def json_safe(value: Any) -> Any:
+    """Non-finite floats as strings ("inf", "nan"), recursively."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, dict):
+        return {key: json_safe(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(item) for item in value]
+    return value
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -43,6 +58,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.store = store
     app.state.login_limit = LoginRateLimit(settings.login_attempts_per_minute)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(_request: Request, error: RequestValidationError) -> JSONResponse:
+        """FastAPI's 422, with the offending input made JSON-safe: a body may hold the literals NaN or Infinity
+        (Python's json reads them), which JSON cannot carry back (FastAPI's own handler failed with a 500)."""
+        return JSONResponse(status_code=422, content={"detail": json_safe(jsonable_encoder(error.errors()))})
 
     @app.exception_handler(NotFound)
     async def _not_found(_request: Request, error: NotFound) -> JSONResponse:

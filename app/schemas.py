@@ -48,7 +48,7 @@ def errors(*codes: int) -> dict[int | str, dict[str, Any]]:
     return {code: {"model": ErrorOut, "description": ERROR_DESCRIPTIONS[code]} for code in codes}
 
 
-WRITE_ERRORS = (401, 403, 413)
+WRITE_ERRORS = (400, 401, 403, 413)
 
 
 class HealthOut(BaseModel):
@@ -312,7 +312,10 @@ class QueueItem(BaseModel):
 class MetricsOut(BaseModel):
     run_id: int
     last_step: int = Field(description="Largest step returned (or since_step); pass it back as since_step.")
-    series: dict[str, list[tuple[int, float]]] = Field(description="name -> [[step, value], …], by step.")
+    # [step, value] pairs as two-item lists: OpenAPI 3.1 has no tuple schema FastAPI emits validly.
+    series: dict[str, list[Annotated[list[int | float], Field(min_length=2, max_length=2)]]] = Field(
+        description="name -> [[step, value], …], by step."
+    )
 
 
 class EventOut(BaseModel):

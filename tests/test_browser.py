@@ -74,6 +74,8 @@ def _shot(page: Page, name: str) -> None:
 def test_goal_photos_run_queue_and_curves(page: Page, live_server: str, store: Store, tmp_path: Path) -> None:
     errors: list[str] = []
     page.on("pageerror", lambda error: errors.append(str(error)))
+    # every response carries a Content-Security-Policy: anything it blocks shows up as a console error
+    page.on("console", lambda message: errors.extend([message.text] if "Security Policy" in message.text else []))
 
     # 1. a goal set with two photos uploaded through the page
     page.goto(f"{live_server}/goal-sets")

@@ -32,10 +32,10 @@ def run_metrics(
             status_code=422,
             detail=[{"loc": ["query", "names"], "msg": f"at most {MAX_NAMES} names", "type": "too_long"}],
         )
-    series: dict[str, list[tuple[int, float]]] = {}
+    series: dict[str, list[list[int | float]]] = {}
     last_step = since_step
     for metric in store.metrics(run_id=run_id, since_step=since_step, names=wanted):
         last_step = max(last_step, metric.step)
         if math.isfinite(metric.value):
-            series.setdefault(metric.name, []).append((metric.step, metric.value))
+            series.setdefault(metric.name, []).append([metric.step, metric.value])
     return MetricsOut(run_id=run_id, last_step=last_step, series=series)

@@ -203,10 +203,12 @@ def login(
     client = _client_address(request)
     wait = limit.retry_after(client)
     if wait is not None:
-        return _page(
+        refused = _page(
             request, "login.html", settings, store, status_code=429, title="Log in", next=target,
             error=f"Too many wrong tokens from your address: try again in {wait} s.",
         )  # fmt: skip
+        refused.headers["Retry-After"] = str(wait)
+        return refused
     if not hmac.compare_digest(token.strip().encode(), settings.api_token.encode()):
         limit.failed(client)
         return _page(

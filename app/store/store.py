@@ -416,18 +416,20 @@ class Store(Database):
 
     def query_counts(self, *, run_id: int) -> dict[str, int]:
         """asked, pending, answered, yes, skipped."""
+        # By status from the (run_id, status) index alone; "yes" visits only the answered rows.
         with self.reading() as session:
             rows = session.execute(
-                select(Query.status, Query.answer, func.count())
-                .where(Query.run_id == run_id)
-                .group_by(Query.status, Query.answer)
+                select(Query.status, func.count()).where(Query.run_id == run_id).group_by(Query.status)
             ).all()
-        counts = {"asked": 0, "pending": 0, "answered": 0, "yes": 0, "skipped": 0}
-        for status, answer, n in rows:
+            yes = session.scalar(
+                select(func.count())
+                .select_from(Query)
+                .where(Query.run_id == run_id, Query.status == QueryStatus.ANSWERED, Query.answer.is_(True))
+            )
+        counts = {"asked": 0, "pending": 0, "answered": 0, "yes": int(yes or 0), "skipped": 0}
+        for status, n in rows:
             counts["asked"] += n
             counts[status] = counts.get(status, 0) + n
-            if status == QueryStatus.ANSWERED and answer:
-                counts["yes"] += n
         return counts
 
     def query_image(self, *, query_id: int, resolution: str) -> bytes:
