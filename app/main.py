@@ -27,9 +27,12 @@ LOOPBACK_HOST_NAMES = ["127.0.0.1", "localhost", "[::1]", "::1", "testserver"]
 
 
 def json_safe(value: Any) -> Any:
-    """Non-finite floats as strings ("inf", "nan"), recursively."""
+    """Non-finite floats as strings ("inf", "nan") and lone surrogates as "?", recursively: what JSON in UTF-8
+    can carry."""
     if isinstance(value, float) and not math.isfinite(value):
         return str(value)
+    if isinstance(value, str):
+        return value.encode("utf-8", "replace").decode("utf-8")
     if isinstance(value, dict):
         return {key: json_safe(item) for key, item in value.items()}
     if isinstance(value, list | tuple):
@@ -62,7 +65,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @app.exception_handler(RequestValidationError)
     async def _validation(_request: Request, error: RequestValidationError) -> JSONResponse:
         """FastAPI's 422, with the offending input made JSON-safe: a body may hold the literals NaN or Infinity
-        (Python's json reads them), which JSON cannot carry back (FastAPI's own handler failed with a 500)."""
+        (Python's json reads them) or a lone surrogate ("\\ud800"), which the response cannot carry back (FastAPI's
+        own handler failed with a 500)."""
         return JSONResponse(status_code=422, content={"detail": json_safe(jsonable_encoder(error.errors()))})
 
     @app.exception_handler(NotFound)

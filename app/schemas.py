@@ -10,14 +10,15 @@ from app.store import INT32_MAX, GoalExample, GoalSet, Query, Rollout, Run, seco
 from app.store.models import Event
 
 
-def _no_surrogates(value: str) -> str:
-    """JSON may escape lone UTF-16 surrogates ("\\ud800") that no database can store as text."""
-    if any("\ud800" <= char <= "\udfff" for char in value):
-        raise ValueError("must be valid Unicode text (no lone surrogates)")
+def _storable_text(value: str) -> str:
+    """JSON may escape lone UTF-16 surrogates ("\\ud800") and NUL ("\\u0000"), which databases cannot store as
+    text (SQLite's encoder fails on the first, PostgreSQL on both)."""
+    if "\x00" in value or any("\ud800" <= char <= "\udfff" for char in value):
+        raise ValueError("must be valid Unicode text without NUL characters or lone surrogates")
     return value
 
 
-Text = Annotated[str, AfterValidator(_no_surrogates)]
+Text = Annotated[str, AfterValidator(_storable_text)]
 
 
 class InputModel(BaseModel):

@@ -162,6 +162,13 @@ def test_unknown_fields_at_any_level_are_422_naming_them(client: TestClient, goa
     assert client.get("/api/runs").json() == [] and client.get("/api/goal-sets").json() != []
 
 
+def test_text_no_database_can_store_is_422(client: TestClient) -> None:
+    for body in [rb'{"name": "half \ud800 a pair"}', rb'{"name": "nul \u0000"}']:
+        response = client.post("/api/goal-sets", content=body, headers={"Content-Type": "application/json"})
+        assert response.status_code == 422, (body, response.text)
+    assert client.get("/api/goal-sets").json() == []
+
+
 # ---------------------------------------------------------------- 2. env ids
 def test_env_ids_must_be_registered_or_from_an_allowed_module(
     make_client: Callable[..., TestClient], goal_set_with_photo: dict
