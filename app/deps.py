@@ -12,6 +12,7 @@ from app.settings import Settings
 from app.store import INT32_MAX, Store
 
 SESSION_COOKIE = "raq_session"
+AUTHORISED_STATE = "raq_authorised"  # set in the request's state by app.security.RequestGuard
 
 
 def get_app_settings(request: Request) -> Settings:
@@ -57,7 +58,7 @@ def is_authorised(request: Request, settings: Settings, store: Store) -> bool:
     """True without a token; with one, when the request carries the bearer token or a live login session.
     Reads only headers (never the body), so app.security.RequestGuard can call it before the body arrives."""
     token = settings.api_token
-    if not token:
+    if not token or request.scope.get("state", {}).get(AUTHORISED_STATE):
         return True
     if has_bearer_token(request, token):
         return True

@@ -23,7 +23,7 @@ from starlette.datastructures import Headers, MutableHeaders
 from starlette.requests import Request
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from app.deps import UNAUTHORISED_DETAIL, is_authorised
+from app.deps import AUTHORISED_STATE, UNAUTHORISED_DETAIL, is_authorised
 from app.routers.goal_sets import MAX_FILES_PER_UPLOAD
 from app.settings import Settings
 from app.store import Store
@@ -116,7 +116,9 @@ class RequestGuard:
         method: str = scope["method"]
         if self.settings.api_token and not is_public(path):
             request = Request(scope)  # headers and cookies only; nothing here touches the body
-            if not await run_in_threadpool(is_authorised, request, self.settings, self.store):
+            if await run_in_threadpool(is_authorised, request, self.settings, self.store):
+                scope.setdefault("state", {})[AUTHORISED_STATE] = True  # the routes' checks need not look again
+            else:
                 if method in ("GET", "HEAD") and is_page(path):
                     target = path + (f"?{scope['query_string'].decode('latin-1')}" if scope["query_string"] else "")
                     return RedirectResponse(f"/login?next={quote(target, safe='')}", status_code=303)
