@@ -14,6 +14,7 @@ from fastapi.staticfiles import StaticFiles
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from app.routers import events, goal_sets, health, metrics, pages, queries, runs
+from app.schemas import errors
 from app.security import LoginRateLimit, RequestGuard
 from app.settings import Settings, get_settings
 from app.store import Conflict, InvalidInput, NotFound, Store
@@ -57,6 +58,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         summary="Teach a robot a visual skill from goal photos; answer its yes/no questions.",
         version="0.1.0",
         lifespan=lifespan,
+        # app.security.RequestGuard may answer any route so: a malformed Content-Length, a body over the cap
+        responses=errors(400, 413),
     )
     app.state.settings = settings
     app.state.store = store

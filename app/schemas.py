@@ -34,7 +34,8 @@ class ErrorOut(BaseModel):
 
 
 ERROR_DESCRIPTIONS: dict[int, str] = {
-    400: "A malformed request (e.g. an upload that is not a usable image, a name that is blank)",
+    400: "A malformed request: an invalid Content-Length, a body that cannot be parsed, an upload that is not a "
+    "usable image, a blank name",
     401: "RAQ_API_TOKEN is set and the request carries neither the bearer token nor a login session",
     403: "A change sent by a page of another web site (CSRF, DNS rebinding)",
     404: "Not found",
