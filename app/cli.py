@@ -1,4 +1,4 @@
-"""The `raq` command: serve, learn, up, oracle, goals, migrate."""
+"""The `raq` command: serve, learn, up, oracle, goals, migrate, sessions."""
 
 import argparse
 import logging
@@ -55,6 +55,23 @@ def cmd_learn(args: argparse.Namespace) -> int:
     print(f"learner: taking queued runs from {settings.resolved_database_url}", flush=True)
 
     return work(settings, worker_name=args.name, once=args.once)
+
+
+def cmd_sessions(args: argparse.Namespace) -> int:
+    """How many browsers are logged in; with --end-all, log every one of them out."""
+    from app.store import Store
+
+    settings = get_settings()
+    _migrate(settings)
+    store = Store(settings.resolved_database_url)
+    try:
+        if args.end_all:
+            print(f"ended {store.end_all_sessions()} login session(s)", flush=True)
+        else:
+            print(f"{store.count_sessions()} active login session(s)", flush=True)
+    finally:
+        store.dispose()
+    return 0
 
 
 def cmd_oracle(args: argparse.Namespace, rest: Sequence[str]) -> int:
@@ -150,6 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     migrate = commands.add_parser("migrate", help="apply database migrations")
     migrate.set_defaults(handler=cmd_migrate)
+
+    sessions = commands.add_parser("sessions", help="count browser login sessions, or end them all")
+    sessions.add_argument("--end-all", action="store_true", help="log every browser out now")
+    sessions.set_defaults(handler=cmd_sessions)
 
     oracle = commands.add_parser("oracle", help="answer queries from simulated ground truth (REST API)", add_help=False)
     oracle.set_defaults(passthrough=cmd_oracle)

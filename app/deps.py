@@ -1,16 +1,18 @@
-"""FastAPI dependencies as Annotated aliases: the settings, the store, and write authorisation."""
+"""FastAPI dependencies as Annotated aliases: the settings, the store, authorisation; and the login sessions."""
 
 import hashlib
 import hmac
+import secrets
 from typing import Annotated
 from urllib.parse import urlsplit
 
-from fastapi import Depends, HTTPException, Request, status
+from fastapi import Depends, HTTPException, Path, Request, status
 
 from app.settings import Settings
-from app.store import Store
+from app.store import INT32_MAX, Store
 
 SESSION_COOKIE = "raq_session"
+AUTHORISED_STATE = "raq_authorised"  # set in the request's state by app.security.RequestGuard
 
 
 def get_app_settings(request: Request) -> Settings:
@@ -24,22 +26,46 @@ def get_store(request: Request) -> Store:
 SettingsDep = Annotated[Settings, Depends(get_app_settings)]
 StoreDep = Annotated[Store, Depends(get_store)]
 
+# Ids in paths, bounded to their INTEGER column's range (32-bit on PostgreSQL): a larger one is 422, never
+# an overflow inside the database driver.
+RunId = Annotated[int, Path(ge=1, le=INT32_MAX, description="A run's id.")]
+GoalSetId = Annotated[int, Path(ge=1, le=INT32_MAX, description="A goal set's id.")]
+GoalExampleId = Annotated[int, Path(ge=1, le=INT32_MAX, description="A goal example's id.")]
+QueryId = Annotated[int, Path(ge=1, le=INT32_MAX, description="A query's id.")]
 
-def session_value(token: str) -> str:
-    """What the login cookie holds: a keyed hash of the token, so the cookie never carries the token."""
+
+def token_fingerprint(token: str) -> str:
+    """A keyed hash of the API token stored with each session: a new token ends every older session."""
     return hmac.new(token.encode(), b"vice-raq session", hashlib.sha256).hexdigest()
 
 
-def is_authorised(request: Request, settings: Settings) -> bool:
-    """True without a token; with one, when the request carries the bearer token or the login cookie."""
-    token = settings.api_token
-    if not token:
-        return True
+def new_session_secret() -> str:
+    """What the login cookie holds: 256 random bits, unrelated to the token."""
+    return secrets.token_urlsafe(32)
+
+
+def secret_hash(secret: str) -> str:
+    """What the store keeps of a session's secret (a database reader cannot log in with it)."""
+    return hashlib.sha256(secret.encode()).hexdigest()
+
+
+def has_bearer_token(request: Request, token: str) -> bool:
     scheme, _, credentials = request.headers.get("authorization", "").partition(" ")
-    if scheme.lower() == "bearer" and hmac.compare_digest(credentials.strip().encode(), token.encode()):
+    return scheme.lower() == "bearer" and hmac.compare_digest(credentials.strip().encode(), token.encode())
+
+
+def is_authorised(request: Request, settings: Settings, store: Store) -> bool:
+    """True without a token; with one, when the request carries the bearer token or a live login session.
+    Reads only headers (never the body), so app.security.RequestGuard can call it before the body arrives."""
+    token = settings.api_token
+    if not token or request.scope.get("state", {}).get(AUTHORISED_STATE):
         return True
-    cookie = request.cookies.get(SESSION_COOKIE, "")
-    return bool(cookie) and hmac.compare_digest(cookie.encode(), session_value(token).encode())
+    if has_bearer_token(request, token):
+        return True
+    secret = request.cookies.get(SESSION_COOKIE, "")
+    if not secret or len(secret) > 200:
+        return False
+    return store.session_is_active(secret_hash=secret_hash(secret), token_fingerprint=token_fingerprint(token))
 
 
 DEFAULT_PORTS = {"http": 80, "https": 443}
@@ -89,16 +115,29 @@ def require_same_origin(request: Request) -> None:
         raise HTTPException(status_code=status.HTTP_403_FORBIDDEN, detail=CROSS_SITE_DETAIL.format(reason=reason))
 
 
-def require_write_access(request: Request, settings: SettingsDep) -> None:
+UNAUTHORISED_DETAIL = "this server needs a token: send 'Authorization: Bearer <token>' or log in at /login"
+
+
+def unauthorised() -> HTTPException:
+    return HTTPException(
+        status_code=status.HTTP_401_UNAUTHORIZED, detail=UNAUTHORISED_DETAIL, headers={"WWW-Authenticate": "Bearer"}
+    )
+
+
+def require_read_access(request: Request, settings: SettingsDep, store: StoreDep) -> None:
+    """Reads need the token too when one is set. RequestGuard has refused such a request already, before its
+    body; this dependency documents the 401 in the OpenAPI spec and holds if the guard is ever bypassed."""
+    if not is_authorised(request, settings, store):
+        raise unauthorised()
+
+
+def require_write_access(request: Request, settings: SettingsDep, store: StoreDep) -> None:
     """Writes: first refuse cross-site browser requests (with or without a token), then check the token."""
     require_same_origin(request)
-    if not is_authorised(request, settings):
-        raise HTTPException(
-            status_code=status.HTTP_401_UNAUTHORIZED,
-            detail="this server needs a token for changes: send 'Authorization: Bearer <token>' or log in at /login",
-            headers={"WWW-Authenticate": "Bearer"},
-        )
+    if not is_authorised(request, settings, store):
+        raise unauthorised()
 
 
+ReadAuth = Annotated[None, Depends(require_read_access)]
 WriteAuth = Annotated[None, Depends(require_write_access)]
 SameOrigin = Annotated[None, Depends(require_same_origin)]

@@ -1,18 +1,21 @@
 """The web app: REST API under /api, HTML pages, static files. `create_app` is uvicorn's factory."""
 
-import re
+import math
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import Any
 
-from fastapi import FastAPI, HTTPException, Request
+from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
-from starlette.datastructures import Headers
 from starlette.middleware.trustedhost import TrustedHostMiddleware
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.routers import events, goal_sets, health, metrics, pages, queries, runs
+from app.schemas import errors
+from app.security import LoginRateLimit, RequestGuard
 from app.settings import Settings, get_settings
 from app.store import Conflict, InvalidInput, NotFound, Store
 
@@ -22,55 +25,20 @@ STATIC_DIR = ROOT / "static"
 # only names a browser can legitimately reach it by; any other Host is a DNS-rebinding page. "testserver"
 # is TestClient's host.
 LOOPBACK_HOST_NAMES = ["127.0.0.1", "localhost", "[::1]", "::1", "testserver"]
-UPLOAD_PATH = re.compile(r"/api/goal-sets/[^/]+/examples/?$")
 
 
-class UploadSizeLimit:
-    """Bound a goal-photo upload's whole request before it is parsed: Starlette spools every part to disk
-    or memory before the endpoint runs, so the per-file limit alone would come too late.
-
-    A Content-Length above `limit` is refused with 413 before a byte is read; a body without one (chunked)
-    is counted as it arrives and refused with 413 as soon as it passes `limit`.
-    """
-
-    def __init__(self, app: ASGIApp, *, max_file_bytes: int) -> None:
-        self.app = app
-        self.max_file_bytes = max_file_bytes
-        self.limit = goal_sets.upload_request_limit(max_file_bytes)
-
-    def _detail(self, size: str) -> str:
-        return (
-            f"the upload is {size} bytes; the limit for one request is {self.limit:,} bytes "
-            f"(at most {goal_sets.MAX_FILES_PER_UPLOAD} files of up to {self.max_file_bytes:,} bytes each); "
-            "nothing from this upload was stored"
-        )
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope["method"] != "POST" or not UPLOAD_PATH.search(scope["path"]):
-            await self.app(scope, receive, send)
-            return
-        length = Headers(scope=scope).get("content-length")
-        if length is not None:
-            if not length.strip().isdigit():
-                await JSONResponse({"detail": "invalid Content-Length header"}, status_code=400)(scope, receive, send)
-                return
-            if int(length) > self.limit:
-                response = JSONResponse({"detail": self._detail(f"{int(length):,}")}, status_code=413)
-                await response(scope, receive, send)
-                return
-        received = 0
-
-        async def counted_receive() -> Message:
-            nonlocal received
-            message = await receive()
-            if message["type"] == "http.request":
-                received += len(message.get("body", b""))
-                if received > self.limit:
-                    # raised inside the form parser; FastAPI re-raises HTTPExceptions and answers with JSON
-                    raise HTTPException(status_code=413, detail=self._detail(f"more than {self.limit:,}"))
-            return message
-
-        await self.app(scope, counted_receive, send)
+def json_safe(value: Any) -> Any:
+    """Non-finite floats as strings ("inf", "nan") and lone surrogates as "?", recursively: what JSON in UTF-8
+    can carry."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, str):
+        return value.encode("utf-8", "replace").decode("utf-8")
+    if isinstance(value, dict):
+        return {key: json_safe(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(item) for item in value]
+    return value
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -90,9 +58,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         summary="Teach a robot a visual skill from goal photos; answer its yes/no questions.",
         version="0.1.0",
         lifespan=lifespan,
+        # app.security.RequestGuard may answer any route so: a malformed Content-Length, a body over the cap
+        responses=errors(400, 413),
     )
     app.state.settings = settings
     app.state.store = store
+    app.state.login_limit = LoginRateLimit(settings.login_attempts_per_minute)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(_request: Request, error: RequestValidationError) -> JSONResponse:
+        """FastAPI's 422, with the offending input made JSON-safe: a body may hold the literals NaN or Infinity
+        (Python's json reads them) or a lone surrogate ("\\ud800"), which the response cannot carry back (FastAPI's
+        own handler failed with a 500)."""
+        return JSONResponse(status_code=422, content={"detail": json_safe(jsonable_encoder(error.errors()))})
 
     @app.exception_handler(NotFound)
     async def _not_found(_request: Request, error: NotFound) -> JSONResponse:
@@ -114,8 +92,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(events.router)
     app.include_router(pages.router)
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
-    # The last added is the outermost: check the Host first, then the upload's size.
-    app.add_middleware(UploadSizeLimit, max_file_bytes=settings.max_upload_bytes)
+    # The last added is the outermost: the guard (token, body size, security headers) sees every request
+    # first, then (without a token) the Host is checked.
     if not settings.api_token:
         app.add_middleware(TrustedHostMiddleware, allowed_hosts=LOOPBACK_HOST_NAMES)
+    app.add_middleware(
+        RequestGuard,
+        settings=settings,
+        store=store,
+        upload_limit=goal_sets.upload_request_limit(settings.max_upload_bytes),
+    )
     return app

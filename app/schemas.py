@@ -2,12 +2,55 @@
 
 import math
 from datetime import datetime
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
-from app.store import GoalExample, GoalSet, Query, Rollout, Run, seconds_since
+from app.store import INT32_MAX, GoalExample, GoalSet, Query, Rollout, Run, seconds_since
 from app.store.models import Event
+
+
+def _storable_text(value: str) -> str:
+    """JSON may escape lone UTF-16 surrogates ("\\ud800") and NUL ("\\u0000"), which databases cannot store as
+    text (SQLite's encoder fails on the first, PostgreSQL on both)."""
+    if "\x00" in value or any("\ud800" <= char <= "\udfff" for char in value):
+        raise ValueError("must be valid Unicode text without NUL characters or lone surrogates")
+    return value
+
+
+Text = Annotated[str, AfterValidator(_storable_text)]
+
+
+class InputModel(BaseModel):
+    """A request body: unknown fields are refused (422 naming them), floats must be finite."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class ErrorOut(BaseModel):
+    """Every 4xx and 5xx body: a message, or for 422 a list of {loc, msg, type} naming each bad field."""
+
+    detail: str | list[dict[str, Any]]
+
+
+ERROR_DESCRIPTIONS: dict[int, str] = {
+    400: "A malformed request: an invalid Content-Length, a body that cannot be parsed, an upload that is not a "
+    "usable image, a blank name",
+    401: "RAQ_API_TOKEN is set and the request carries neither the bearer token nor a login session",
+    403: "A change sent by a page of another web site (CSRF, DNS rebinding)",
+    404: "Not found",
+    409: "Conflicts with the current state",
+    413: "The request body is larger than this route accepts (refused before it is read)",
+    429: "Too many attempts; retry after the Retry-After header's seconds",
+}
+
+
+def errors(*codes: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI `responses` for these error status codes, each with the ErrorOut body."""
+    return {code: {"model": ErrorOut, "description": ERROR_DESCRIPTIONS[code]} for code in codes}
+
+
+WRITE_ERRORS = (400, 401, 403, 413)
 
 
 class HealthOut(BaseModel):
@@ -16,8 +59,8 @@ class HealthOut(BaseModel):
 
 
 # ---------------------------------------------------------------- goal sets
-class GoalSetCreate(BaseModel):
-    name: str = Field(min_length=1, max_length=200, examples=["pusher puck on target"])
+class GoalSetCreate(InputModel):
+    name: Text = Field(min_length=1, max_length=200, examples=["pusher puck on target"])
     image_size: int = Field(default=48, ge=8, le=512, description="Side of the model's square view in pixels.")
 
 
@@ -75,7 +118,7 @@ class GoalSetDetail(GoalSetOut):
 
 
 # ---------------------------------------------------------------- runs
-class RunCreate(BaseModel):
+class RunCreate(InputModel):
     """A new run. `env_id`, `algorithm` and `seed` may be given here or inside `config`; here wins."""
 
     model_config = ConfigDict(
@@ -92,12 +135,14 @@ class RunCreate(BaseModel):
         }
     )
 
-    name: str = Field(default="", max_length=200)
-    env_id: str | None = None
-    algorithm: str | None = None
+    name: Text = Field(default="", max_length=200)
+    env_id: Text | None = Field(default=None, max_length=200)
+    algorithm: Text | None = Field(default=None, max_length=50)
     seed: int | None = None
-    goal_set_id: int | None = None
-    config: dict[str, Any] = Field(default_factory=dict, description="TrainConfig fields to override.")
+    goal_set_id: int | None = Field(default=None, ge=1, le=INT32_MAX)
+    config: dict[str, Any] = Field(
+        default_factory=dict, description="TrainConfig fields to override; an unknown one is refused (422)."
+    )
 
 
 class RolloutOut(BaseModel):
@@ -246,13 +291,13 @@ def _sigmoid(value: float) -> float:
     return exp / (1.0 + exp)
 
 
-class AnswerIn(BaseModel):
+class AnswerIn(InputModel):
     success: bool = Field(description="True: this image shows success.")
-    labeler: str = Field(default="", max_length=200, description="Who answered (a name, or 'oracle').")
+    labeler: Text = Field(default="", max_length=200, description="Who answered (a name, or 'oracle').")
 
 
-class SkipIn(BaseModel):
-    labeler: str = Field(default="", max_length=200)
+class SkipIn(InputModel):
+    labeler: Text = Field(default="", max_length=200)
 
 
 class QueueItem(BaseModel):
@@ -269,7 +314,10 @@ class QueueItem(BaseModel):
 class MetricsOut(BaseModel):
     run_id: int
     last_step: int = Field(description="Largest step returned (or since_step); pass it back as since_step.")
-    series: dict[str, list[tuple[int, float]]] = Field(description="name -> [[step, value], …], by step.")
+    # [step, value] pairs as two-item lists: OpenAPI 3.1 has no tuple schema FastAPI emits validly.
+    series: dict[str, list[Annotated[list[int | float], Field(min_length=2, max_length=2)]]] = Field(
+        description="name -> [[step, value], …], by step."
+    )
 
 
 class EventOut(BaseModel):

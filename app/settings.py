@@ -2,9 +2,10 @@
 
 from functools import lru_cache
 from pathlib import Path
+from typing import Annotated
 
 from pydantic import AliasChoices, Field, field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 
 class Settings(BaseSettings):
@@ -21,7 +22,23 @@ class Settings(BaseSettings):
     host: str = Field(default="127.0.0.1", description="Address the web server binds.")
     port: int = Field(default=8000, ge=1, le=65535, description="Port the web server binds.")
     api_token: str | None = Field(
-        default=None, description="When set, every write needs 'Authorization: Bearer <token>'."
+        default=None,
+        description="When set, every request but /login, /health and /static needs 'Authorization: Bearer <token>' "
+        "or a login session.",
+    )
+    session_max_age_seconds: int = Field(
+        default=30 * 24 * 3600, ge=60, le=365 * 24 * 3600, description="A login session ends this long after login."
+    )
+    login_attempts_per_minute: int = Field(
+        default=10, ge=1, le=10_000, description="Failed /login attempts one client address may make per minute."
+    )
+    max_json_bytes: int = Field(
+        default=1024 * 1024, ge=1024, le=64 * 1024 * 1024, description="Largest body of any request but an upload."
+    )
+    env_modules: Annotated[tuple[str, ...], NoDecode] = Field(
+        default=(),
+        description="Python modules (and their submodules) a run may name as 'module:EnvId'; the learner imports "
+        "no other module for an env. Comma-separated in RAQ_ENV_MODULES.",
     )
     server_url: str | None = Field(default=None, description="Base URL the oracle talks to.")
     max_upload_bytes: int = Field(default=20 * 1024 * 1024, description="Largest accepted upload.")
@@ -29,6 +46,21 @@ class Settings(BaseSettings):
     stale_heartbeat_seconds: float = Field(
         default=60.0, description="A training run whose heartbeat is older than this is reclaimed."
     )
+
+    @field_validator("env_modules", mode="before")
+    @classmethod
+    def _split_modules(cls, value: object) -> object:
+        if isinstance(value, str):
+            return tuple(name.strip() for name in value.split(",") if name.strip())
+        return value
+
+    @field_validator("env_modules")
+    @classmethod
+    def _module_names(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        for name in value:
+            if not all(part.isidentifier() for part in name.split(".")):
+                raise ValueError(f"{name!r} is not a Python module name")
+        return value
 
     @field_validator("api_token")
     @classmethod

@@ -3,10 +3,50 @@
 This module imports neither torch nor the store, so the web app can validate a run's config with it.
 """
 
+import math
+import os
+import re
 from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
 from typing import Any, Literal, get_args, get_origin, get_type_hints
 
 from learner.algorithms import ALGORITHMS
+
+SEED_MAX = 2**31 - 1  # the runs.seed column (INTEGER: 32-bit on PostgreSQL); numpy and torch take any of these
+# Upper bounds of the integer fields (lower bounds in TrainConfig.validation_errors): what one learner can do
+# on a workstation-class host. A run of 10^9 env steps takes over a year at the ~25 steps/s measured here.
+INT_MAXIMA: dict[str, int] = {
+    "total_steps": 1_000_000_000, "episode_steps": 100_000, "batch_size": 4096, "initial_random_steps": 1_000_000,
+    "updates_per_step": 100, "replay_capacity": 10_000_000, "conv_filters": 256, "hidden_dim": 4096,
+    "feature_dim": 4096, "classifier_batch_size": 4096, "classifier_steps": 100_000, "epoch_steps": 1_000_000,
+    "naive_classifier_steps": 1_000_000, "raq_initial_negatives": 1_000_000, "query_every": 1_000_000_000,
+    "query_budget": 100_000, "eval_every": 1_000_000_000, "eval_episodes": 1000, "checkpoint_every": 1_000_000_000,
+    "display_size": 1024, "rollout_size": 512, "query_candidates": 1024, "log_every": 1_000_000_000,
+}  # fmt: skip
+FLOAT_MAXIMA: dict[str, float] = {
+    "actor_lr": 1.0, "critic_lr": 1.0, "alpha_lr": 1.0, "classifier_lr": 1.0, "initial_alpha": 1e6,
+    "mixup_alpha": 100.0, "heartbeat_seconds": 3600.0,
+}  # fmt: skip
+DEVICE_PATTERN = re.compile(r"cpu|cuda(:(1[0-5]|[0-9]))?")
+ENV_ID_PATTERN = re.compile(r"[A-Za-z0-9_.\-/]+(:[A-Za-z0-9_.\-/]+)?")
+# Memory a run may take on this host: its estimate (TrainConfig.memory_estimate) must stay under this share of RAM.
+MEMORY_SHARE = 0.8
+
+
+def host_memory_bytes() -> int:
+    """Physical memory of this host (Linux /proc/meminfo, else sysconf)."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemTotal:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def host_cuda_devices() -> int:
+    """NVIDIA GPUs this host exposes (/dev/nvidia0, /dev/nvidia1, …), counted without importing torch."""
+    return sum(1 for path in Path("/dev").glob("nvidia*") if path.name[len("nvidia") :].isdigit())
 
 
 def _choice_fields() -> dict[str, tuple[Any, ...]]:
@@ -20,11 +60,11 @@ class TrainConfig:
     """Everything that defines a training run (the paper's settings unless a field says otherwise)."""
 
     env_id: str = "VisualPusher-v0"
-    """Gymnasium id, or "module:EnvId", of an env whose observation is an RGB uint8 image."""
+    """Gymnasium id, or "module:EnvId" with a module in RAQ_ENV_MODULES, of an env with RGB image observations."""
     algorithm: str = "vice_raq"
     """Reward method, one of learner.algorithms.ALGORITHM_SPECS: vice_raq, vice, raq, naive_classifier, sparse."""
     seed: int = 0
-    """Seed for torch, numpy and the env."""
+    """Seed for torch, numpy and the env (0 to 2**31 - 1)."""
     image_size: int = 48
     """Side of the square observation the networks see, in pixels."""
     total_steps: int = 100_000
@@ -72,7 +112,7 @@ class TrainConfig:
     precision: Literal["auto", "fp32", "bf16"] = "auto"
     """Autocast dtype of every network (SAC and f_psi); bf16 also hands them bf16 images; auto: bf16 where faster."""
     device: str = "cpu"
-    """Torch device ("cpu" or "cuda")."""
+    """Torch device: "cpu", "cuda" or "cuda:N", a GPU this host has."""
 
     # --- reward classifier f_psi
     classifier_lr: float = 3e-4
@@ -130,17 +170,39 @@ class TrainConfig:
             "conv_filters", "hidden_dim", "classifier_batch_size", "epoch_steps", "query_every", "eval_every",
             "checkpoint_every", "display_size", "rollout_size", "query_candidates", "log_every",
         )  # fmt: skip
+        for field in fields(self):
+            value = getattr(self, field.name)
+            if isinstance(value, float) and not math.isfinite(value):
+                errors.append((field.name, "must be a finite number"))
+        if errors:
+            return errors
         for name in positive_ints:
             if getattr(self, name) < 1:
                 errors.append((name, "must be at least 1"))
         for name in ("eval_episodes", "classifier_steps", "query_budget", "initial_random_steps", "feature_dim"):
             if getattr(self, name) < 0:
                 errors.append((name, "must not be negative"))
+        for name, maximum in INT_MAXIMA.items():
+            if getattr(self, name) > maximum:
+                errors.append((name, f"must be at most {maximum:,}"))
         for name in ("actor_lr", "critic_lr", "alpha_lr", "classifier_lr", "initial_alpha"):
             if not getattr(self, name) > 0:
                 errors.append((name, "must be positive"))
+        for name, ceiling in FLOAT_MAXIMA.items():
+            if getattr(self, name) > ceiling:
+                errors.append((name, f"must be at most {ceiling:g}"))
         if not self.heartbeat_seconds > 0:
             errors.append(("heartbeat_seconds", "must be positive"))
+        if not 0 <= self.seed <= SEED_MAX:
+            errors.append(("seed", f"must be between 0 and {SEED_MAX}"))
+        if self.target_entropy is not None and abs(self.target_entropy) > 1e6:
+            errors.append(("target_entropy", "must be between -1e6 and 1e6"))
+        if not DEVICE_PATTERN.fullmatch(self.device):
+            errors.append(("device", "must be 'cpu', 'cuda' or 'cuda:N' (N from 0 to 15)"))
+        if self.display_size < 16:
+            errors.append(("display_size", "must be at least 16"))
+        if self.rollout_size < 16:
+            errors.append(("rollout_size", "must be at least 16"))
         if not 0 < self.discount <= 1:
             errors.append(("discount", "must be in (0, 1]"))
         if not 0 < self.tau <= 1:
@@ -156,6 +218,38 @@ class TrainConfig:
             errors.append(("image_size", "must be between 16 and 256"))
         if not self.env_id.strip():
             errors.append(("env_id", "must name a gymnasium env"))
+        elif len(self.env_id) > 200 or not ENV_ID_PATTERN.fullmatch(self.env_id):
+            errors.append(("env_id", "must be a gymnasium id or 'module:EnvId' (letters, digits, _.-/; 200 at most)"))
+        return errors
+
+    def memory_estimate(self) -> int:
+        """Bytes of host memory the run's images take at most: the replay's frame ring (two frames per
+        transition, uint8), the query candidates with their display renders, raq's first-epoch negatives, and
+        the float32 minibatches of SAC (s and s') and f_psi (positives and negatives) with room for activations."""
+        frame = self.image_size * self.image_size * 3
+        replay = 2 * self.replay_capacity * frame
+        candidates = self.query_candidates * (frame + self.display_size * self.display_size * 3)
+        negatives = self.raq_initial_negatives * frame
+        batches = (2 * self.batch_size + 2 * self.classifier_batch_size) * frame * 4 * 8
+        return replay + candidates + negatives + batches
+
+    def resource_errors(self, *, memory_bytes: int, cuda_devices: int) -> list[tuple[str, str]]:
+        """(field, message) for what this host cannot give the run: memory, or the GPU it names."""
+        errors: list[tuple[str, str]] = []
+        budget = int(memory_bytes * MEMORY_SHARE)
+        needed = self.memory_estimate()
+        if needed > budget:
+            errors.append((
+                "replay_capacity",
+                f"the run would need about {needed / 2**30:,.1f} GiB for its images "
+                f"(replay {self.replay_capacity:,} x 2 frames of {self.image_size}x{self.image_size}x3, query "
+                f"candidates, batches); this host allows {budget / 2**30:,.1f} GiB ({MEMORY_SHARE:.0%} of its RAM)",
+            ))  # fmt: skip
+        if self.device.startswith("cuda"):
+            index = int(self.device.partition(":")[2] or 0)
+            if index >= cuda_devices:
+                have = f"{cuda_devices} CUDA GPU" + ("" if cuda_devices == 1 else "s")
+                errors.append(("device", f"{self.device!r} is not a GPU of this host (it has {have})"))
         return errors
 
     def to_dict(self) -> dict[str, Any]:

@@ -1,13 +1,19 @@
 """Making any image env: a gymnasium id, or "module:EnvId" (the module is imported first, so it can register).
 
+Only modules the operator lists in RAQ_ENV_MODULES (and their submodules) are ever imported for an env, besides
+the project's own `sim`: the server refuses any other env id when the run is created (`env_id_problem`), and
+the learner checks again before it imports anything (`_import_for`).
+
 The env's observation must be an RGB image (HWC or CHW; uint8, or float in [0, 1]), or a dict holding one
 under "image" or "pixels". Observations of another size are resized to image_size. info["success"] is used
 when the env reports it (evaluation success rate, sparse reward, ground truth on queries) and is optional.
 """
 
+import difflib
 import importlib
 import io
 import math
+from collections.abc import Iterable
 from typing import Any
 
 import gymnasium as gym
@@ -15,12 +21,62 @@ import numpy as np
 from PIL import Image
 
 SIM_ENV_IDS = ("VisualPusher-v0", "VisualDoor-v0", "VisualPicker-v0")
+ALWAYS_ALLOWED_MODULES = ("sim",)  # the project's own simulated tasks
+
+
+class EnvNotAllowed(ValueError):
+    """An env id that names a module the operator has not allowed, or an id that is not registered."""
+
+
+def allowed_env_modules() -> tuple[str, ...]:
+    """RAQ_ENV_MODULES, read like every other setting (the learner has no other channel from the operator)."""
+    from app.settings import get_settings  # noqa: PLC0415 - settings are read when an env is made, not at import
+
+    return get_settings().env_modules
+
+
+def module_allowed(module: str, allowed: Iterable[str]) -> bool:
+    """A listed module, or a submodule of a listed package."""
+    return any(module == name or module.startswith(name + ".") for name in (*ALWAYS_ALLOWED_MODULES, *allowed))
+
+
+def known_env_ids() -> list[str]:
+    """Gymnasium's registered ids plus the simulated tasks (registered when `sim` is imported)."""
+    return sorted(set(gym.registry) | set(SIM_ENV_IDS))
+
+
+def env_id_problem(env_id: str, *, allowed_modules: Iterable[str]) -> str | None:
+    """Why env_id cannot be used here (with suggestions for a near miss), or None when it can. A plain id must
+    be registered; "module:EnvId" must name an allowed module (its EnvId is checked when the learner imports it)."""
+    allowed = tuple(allowed_modules)
+    if env_id.count(":") > 1:
+        return f"{env_id!r}: at most one ':' (module:EnvId)"
+    if ":" in env_id:
+        module, name = env_id.split(":", 1)
+        if not module or not name:
+            return f"{env_id!r}: write module:EnvId"
+        if module_allowed(module, allowed):
+            return None
+        listed = ", ".join(allowed) if allowed else "none"
+        close = difflib.get_close_matches(module, [*ALWAYS_ALLOWED_MODULES, *allowed], n=3, cutoff=0.6)
+        hint = f"; did you mean {' or '.join(repr(f'{m}:{name}') for m in close)}?" if close else ""
+        return f"module {module!r} is not one the operator allows for envs (RAQ_ENV_MODULES lists: {listed}){hint}"
+    known = known_env_ids()
+    if env_id in known:
+        return None
+    close = difflib.get_close_matches(env_id, known, n=3, cutoff=0.6)
+    hint = f"; did you mean {' or '.join(map(repr, close))}?" if close else ""
+    return f"{env_id!r} is not a registered gymnasium id{hint}"
 
 
 def _import_for(env_id: str) -> str:
-    """Import what registers env_id; return the id to pass to gymnasium.make."""
+    """Import what registers env_id, if its module is allowed; return the id to pass to gymnasium.make."""
     if ":" in env_id:
         module, name = env_id.split(":", 1)
+        if ":" in name or not module_allowed(module, allowed_env_modules()):
+            raise EnvNotAllowed(
+                f"env {env_id!r}: module {module!r} is not in RAQ_ENV_MODULES, so this learner does not import it"
+            )
         importlib.import_module(module)
         return name
     if env_id not in gym.registry and env_id in SIM_ENV_IDS:

@@ -46,8 +46,14 @@ def _interrupt_on_signals(interrupt: threading.Event) -> Iterator[None]:
             signal.signal(signum, old)  # type: ignore[arg-type]
 
 
+# SQLAlchemy ends its messages with "[SQL: …]", "[parameters: …]" and "(Background on this error at: …)" lines.
+_FOOTER_PREFIXES = ("(Background on this error at:", "[SQL:", "[parameters:")
+
+
 def _last_line(error: BaseException) -> str:
+    """The error's type and message as one line: its last line, skipping SQLAlchemy's footer lines."""
     lines = [line for line in "".join(traceback.format_exception_only(error)).strip().splitlines() if line.strip()]
+    lines = [line for line in lines if not line.strip().startswith(_FOOTER_PREFIXES)] or lines
     return lines[-1] if lines else type(error).__name__
 
 

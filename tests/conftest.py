@@ -7,6 +7,8 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
@@ -20,6 +22,8 @@ from app.settings import Settings
 from app.store import Store
 
 ROOT = Path(__file__).resolve().parent.parent
+# The tests' own env module, allowed for every learner the tests start (in-process or as a subprocess).
+os.environ.setdefault("RAQ_ENV_MODULES", "learner.testing_envs")
 ARTIFACTS = ROOT / "test-artifacts"
 
 
@@ -102,13 +106,29 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-@pytest.fixture
-def live_server(database_url: str, tmp_path: Path) -> Iterator[str]:
-    """`raq serve` as the CLI runs it: uvicorn on app.main:create_app, 127.0.0.1, a free port, this test's DB."""
+@dataclass
+class LiveServer:
+    url: str
+    process: subprocess.Popen
+    log_path: Path
+
+    def rss_bytes(self) -> int:
+        """The server process's resident memory, from /proc."""
+        for line in Path(f"/proc/{self.process.pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) * 1024
+        raise RuntimeError("no VmRSS")
+
+
+@contextmanager
+def run_live_server(database_url: str, tmp_path: Path, env_overrides: dict[str, str]) -> Iterator[LiveServer]:
+    """`raq serve` as the CLI runs it: uvicorn on app.main:create_app, 127.0.0.1, a free port, this test's DB;
+    RAQ_* settings only from env_overrides."""
     port = free_port()
     env = {key: value for key, value in os.environ.items() if not key.startswith("RAQ_")}
     env.update({"RAQ_DATABASE_URL": database_url, "RAQ_DATA_DIR": str(tmp_path), "PYTHONUNBUFFERED": "1"})
-    log_path = tmp_path / "server.log"
+    env.update(env_overrides)
+    log_path = tmp_path / f"server-{port}.log"
     with log_path.open("wb") as log:
         process = subprocess.Popen(
             [sys.executable, "-m", "uvicorn", "--factory", "app.main:create_app",
@@ -129,7 +149,7 @@ def live_server(database_url: str, tmp_path: Path) -> Iterator[str]:
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"the server did not answer /health in 60 s: {log_path.read_text()}")
                 time.sleep(0.2)
-            yield base_url
+            yield LiveServer(base_url, process, log_path)
         finally:
             process.terminate()
             try:
@@ -137,3 +157,16 @@ def live_server(database_url: str, tmp_path: Path) -> Iterator[str]:
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait()
+
+
+@pytest.fixture
+def make_live_server(database_url: str, tmp_path: Path) -> Iterator[Callable[..., LiveServer]]:
+    """Start live servers with RAQ_* settings of the test's choosing: make_live_server(RAQ_API_TOKEN="…")."""
+    with ExitStack() as stack:
+        yield lambda **env: stack.enter_context(run_live_server(database_url, tmp_path, env))
+
+
+@pytest.fixture
+def live_server(make_live_server: Callable[..., LiveServer]) -> str:
+    """A live server without a token; its base URL."""
+    return make_live_server().url

@@ -18,19 +18,30 @@ def test_without_token_writes_need_no_auth(client: TestClient) -> None:
     assert client.get("/login").status_code == 200
 
 
-def test_with_token_every_write_needs_it(make_client: Callable[..., TestClient]) -> None:
+def test_with_token_every_request_needs_it(make_client: Callable[..., TestClient]) -> None:
     client = make_client(api_token=TOKEN)
-    # reads stay open
-    assert client.get("/api/goal-sets").status_code == 200
+    # only /health, /login and /static are public
     assert client.get("/health").status_code == 200
-    assert client.get("/").status_code == 200
-    # writes without or with a wrong token: 401 with a message saying what to do
+    assert client.get("/login").status_code == 200
+    assert client.get("/static/style.css").status_code == 200
+    # API reads and the spec without the token: 401 with a message saying what to do
+    for url in ["/api/goal-sets", "/api/runs", "/api/runs/1", "/api/queries", "/api/queries/next", "/openapi.json"]:
+        response = client.get(url)
+        assert response.status_code == 401, url
+        assert "Bearer" in response.json()["detail"]
+        assert response.headers["www-authenticate"] == "Bearer"
+    # pages redirect to the login, which brings the browser back
+    for url in ["/", "/queue?run=1", "/goal-sets", "/runs/new", "/runs/1", "/docs"]:
+        response = client.get(url, follow_redirects=False)
+        assert response.status_code == 303, url
+        assert response.headers["location"].startswith("/login?next=%2F"), url
+    assert "next=%2Fqueue%3Frun%3D1" in client.get("/queue?run=1", follow_redirects=False).headers["location"]
+    # writes without or with a wrong token
     response = client.post("/api/goal-sets", json={"name": "locked"})
     assert response.status_code == 401
-    assert "Bearer" in response.json()["detail"]
-    assert response.headers["www-authenticate"] == "Bearer"
     wrong = {"Authorization": "Bearer nope"}
     assert client.post("/api/goal-sets", json={"name": "locked"}, headers=wrong).status_code == 401
+    assert client.get("/api/goal-sets", headers=wrong).status_code == 401
     for method, url in [
         ("POST", "/api/runs"),
         ("POST", "/api/runs/1/stop"),
@@ -43,16 +54,17 @@ def test_with_token_every_write_needs_it(make_client: Callable[..., TestClient])
         ("POST", "/api/goal-sets/1/examples"),
     ]:
         assert client.request(method, url, json={}).status_code == 401, (method, url)
-    assert client.get("/api/goal-sets").json() == []
-    # the right bearer token works
+    # the right bearer token works for reads and writes
     good = {"Authorization": f"Bearer {TOKEN}"}
+    assert client.get("/api/goal-sets", headers=good).json() == []
     assert client.post("/api/goal-sets", json={"name": "unlocked"}, headers=good).status_code == 201
+    assert client.get("/openapi.json", headers=good).status_code == 200
 
 
-def test_login_cookie_authorises_page_writes(make_client: Callable[..., TestClient]) -> None:
+def test_login_session_authorises_pages_and_logout_ends_it(make_client: Callable[..., TestClient]) -> None:
     client = make_client(api_token=TOKEN)
-    page = client.get("/queue")
-    assert "log in" in page.text.lower()
+    page = client.get("/queue")  # redirected to the login page
+    assert page.url.path == "/login" and "log in" in page.text.lower()
     bad = client.post("/login", data={"token": "wrong", "next": "/queue"}, follow_redirects=False)
     assert bad.status_code == 401
     assert "not right" in bad.text
@@ -61,12 +73,16 @@ def test_login_cookie_authorises_page_writes(make_client: Callable[..., TestClie
     assert response.headers["location"] == "/queue"
     cookie_header = response.headers["set-cookie"].lower()
     assert "httponly" in cookie_header and "samesite=strict" in cookie_header
-    assert TOKEN not in response.headers["set-cookie"]  # the cookie holds a keyed hash, not the token
+    assert TOKEN not in response.headers["set-cookie"]  # the cookie holds a random session secret
+    secret = client.cookies["raq_session"]
     assert client.post("/api/goal-sets", json={"name": "via cookie"}).status_code == 201
+    assert client.get("/api/goal-sets").status_code == 200
     assert "Log out" in client.get("/").text
-    client.post("/logout", follow_redirects=False)
-    client.cookies.clear()
+    assert client.post("/logout", follow_redirects=False).status_code == 303
+    # the same cookie, sent again after the logout, no longer works: the session ended on the server
+    client.cookies.set("raq_session", secret)
     assert client.post("/api/goal-sets", json={"name": "after logout"}).status_code == 401
+    assert client.get("/api/goal-sets").status_code == 401
 
 
 def test_login_redirect_stays_on_site(make_client: Callable[..., TestClient]) -> None:
@@ -139,4 +155,4 @@ def test_with_token_cross_site_checks_still_apply(make_client: Callable[..., Tes
     behind_proxy = {"Host": "raq.example.org", "Origin": "https://raq.example.org"}
     assert client.post("/api/goal-sets", json={"name": "y"}, headers={**good, **behind_proxy}).status_code == 201
     assert client.post("/login", data={"token": TOKEN}, headers=behind_proxy, follow_redirects=False).status_code == 303
-    assert [g["name"] for g in client.get("/api/goal-sets").json()] == ["y"]
+    assert [g["name"] for g in client.get("/api/goal-sets", headers=good).json()] == ["y"]

@@ -6,10 +6,11 @@ exactly as the learner would, and checks what a person sees and does.
 
 import io
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from conftest import LiveServer
 from PIL import Image, ImageDraw
 from playwright.sync_api import Browser, Page, expect, sync_playwright
 
@@ -74,6 +75,8 @@ def _shot(page: Page, name: str) -> None:
 def test_goal_photos_run_queue_and_curves(page: Page, live_server: str, store: Store, tmp_path: Path) -> None:
     errors: list[str] = []
     page.on("pageerror", lambda error: errors.append(str(error)))
+    # every response carries a Content-Security-Policy: anything it blocks shows up as a console error
+    page.on("console", lambda message: errors.extend([message.text] if "Security Policy" in message.text else []))
 
     # 1. a goal set with two photos uploaded through the page
     page.goto(f"{live_server}/goal-sets")
@@ -220,4 +223,31 @@ def test_goal_photos_run_queue_and_curves(page: Page, live_server: str, store: S
     page.goto(live_server)
     expect(page.locator(f'tr[data-run-id="{run_id}"]')).to_contain_text("VisualPusher-v0")
     _shot(page, "06-runs")
+    assert errors == []
+
+
+def test_with_a_token_pages_need_the_login_and_logout_ends_it(
+    page: Page, make_live_server: Callable[..., LiveServer], store: Store
+) -> None:
+    """Reads need the token too: a page sends the browser to /login and back; Log out ends the session."""
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    page.on("console", lambda message: errors.extend([message.text] if "Security Policy" in message.text else []))
+    server = make_live_server(RAQ_API_TOKEN="browser-token")
+    store.create_goal_set(name="behind the login")
+    page.goto(f"{server.url}/goal-sets")
+    expect(page).to_have_url(re.compile(r"/login\?next=%2Fgoal-sets$"))
+    page.fill("#token", "wrong")
+    page.click("button[type=submit]")
+    expect(page.locator(".alert.error")).to_contain_text("not right")
+    page.fill("#token", "browser-token")
+    page.click("button[type=submit]")
+    expect(page).to_have_url(re.compile(r"/goal-sets$"))
+    expect(page.get_by_text("behind the login")).to_be_visible()
+    assert store.count_sessions() == 1
+    page.click("text=Log out")
+    expect(page).to_have_url(re.compile(r"/login$"))
+    assert store.count_sessions() == 0
+    page.goto(f"{server.url}/")
+    expect(page).to_have_url(re.compile(r"/login\?next=%2F$"))
     assert errors == []

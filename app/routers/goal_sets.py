@@ -5,11 +5,11 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, File, HTTPException, Query, Response, UploadFile, status
 
-from app.deps import SettingsDep, StoreDep, WriteAuth
+from app.deps import GoalExampleId, GoalSetId, ReadAuth, SettingsDep, StoreDep, WriteAuth
 from app.images import ImageRejected, PreparedImage, prepare_upload
-from app.schemas import GoalExampleOut, GoalSetCreate, GoalSetDetail, GoalSetOut
+from app.schemas import WRITE_ERRORS, ErrorOut, GoalExampleOut, GoalSetCreate, GoalSetDetail, GoalSetOut, errors
 
-router = APIRouter(tags=["goal sets"])
+router = APIRouter(tags=["goal sets"], responses=errors(401))
 
 IMAGE_CACHE = {"Cache-Control": "private, max-age=86400"}  # an example's pixels never change
 MAX_FILES_PER_UPLOAD = 100
@@ -20,7 +20,7 @@ MULTIPART_OVERHEAD = 64 * 1024
 
 def upload_request_limit(max_file_bytes: int) -> int:
     """The largest whole upload request: MAX_FILES_PER_UPLOAD files at the per-file limit, plus multipart framing.
-    app.main.UploadSizeLimit refuses a bigger request (413) before it is parsed."""
+    app.security.RequestGuard refuses a bigger request (413) before it is read."""
     return MAX_FILES_PER_UPLOAD * (max_file_bytes + MULTIPART_OVERHEAD_PER_FILE) + MULTIPART_OVERHEAD
 
 
@@ -29,32 +29,39 @@ def _clean_filename(name: str | None, index: int) -> str:
     return base[:255] or f"upload-{index + 1}"
 
 
-@router.post("/api/goal-sets", status_code=status.HTTP_201_CREATED, response_model=GoalSetOut)
+@router.post(
+    "/api/goal-sets",
+    status_code=status.HTTP_201_CREATED,
+    response_model=GoalSetOut,
+    responses=errors(400, 409, *WRITE_ERRORS),
+)
 def create_goal_set(body: GoalSetCreate, store: StoreDep, _auth: WriteAuth) -> GoalSetOut:
     return GoalSetOut.of(store.create_goal_set(name=body.name, image_size=body.image_size), 0)
 
 
 @router.get("/api/goal-sets", response_model=list[GoalSetOut])
-def list_goal_sets(store: StoreDep) -> list[GoalSetOut]:
+def list_goal_sets(store: StoreDep, _auth: ReadAuth) -> list[GoalSetOut]:
     return [GoalSetOut.of(goal_set, count) for goal_set, count in store.list_goal_sets()]
 
 
-@router.get("/api/goal-sets/{goal_set_id}", response_model=GoalSetDetail)
-def get_goal_set(goal_set_id: int, store: StoreDep) -> GoalSetDetail:
+@router.get("/api/goal-sets/{goal_set_id}", response_model=GoalSetDetail, responses=errors(404))
+def get_goal_set(goal_set_id: GoalSetId, store: StoreDep, _auth: ReadAuth) -> GoalSetDetail:
     goal_set = store.get_goal_set(goal_set_id=goal_set_id)
     examples = [GoalExampleOut.of(example) for example in store.list_goal_examples(goal_set_id=goal_set_id)]
     return GoalSetDetail(**GoalSetOut.of(goal_set, len(examples)).model_dump(), examples=examples)
 
 
-@router.delete("/api/goal-sets/{goal_set_id}", status_code=status.HTTP_204_NO_CONTENT)
-def delete_goal_set(goal_set_id: int, store: StoreDep, _auth: WriteAuth) -> Response:
+@router.delete(
+    "/api/goal-sets/{goal_set_id}", status_code=status.HTTP_204_NO_CONTENT, responses=errors(404, *WRITE_ERRORS)
+)
+def delete_goal_set(goal_set_id: GoalSetId, store: StoreDep, _auth: WriteAuth) -> Response:
     """Deletes the set and its photos; runs that used it keep running with what their learner loaded."""
     store.delete_goal_set(goal_set_id=goal_set_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
-@router.get("/api/goal-sets/{goal_set_id}/examples", response_model=list[GoalExampleOut])
-def list_goal_examples(goal_set_id: int, store: StoreDep) -> list[GoalExampleOut]:
+@router.get("/api/goal-sets/{goal_set_id}/examples", response_model=list[GoalExampleOut], responses=errors(404))
+def list_goal_examples(goal_set_id: GoalSetId, store: StoreDep, _auth: ReadAuth) -> list[GoalExampleOut]:
     store.get_goal_set(goal_set_id=goal_set_id)
     return [GoalExampleOut.of(example) for example in store.list_goal_examples(goal_set_id=goal_set_id)]
 
@@ -64,14 +71,18 @@ def list_goal_examples(goal_set_id: int, store: StoreDep) -> list[GoalExampleOut
     status_code=status.HTTP_201_CREATED,
     response_model=list[GoalExampleOut],
     responses={
-        400: {"description": "A file is not a usable image"},
-        413: {"description": f"A file, the request, or the number of files (over {MAX_FILES_PER_UPLOAD}) is too large"},
+        **errors(404, *WRITE_ERRORS),
+        400: {"model": ErrorOut, "description": "A file is not a usable image"},
+        413: {
+            "model": ErrorOut,
+            "description": f"A file, the request, or the number of files (over {MAX_FILES_PER_UPLOAD}) is too large",
+        },
     },
     # The form parser stops at the first file past the cap (400) instead of spooling the rest.
     form_limits={"max_files": MAX_FILES_PER_UPLOAD},
 )
 def upload_goal_examples(
-    goal_set_id: int,
+    goal_set_id: GoalSetId,
     files: Annotated[list[UploadFile], File(description="One or several PNG, JPEG or WebP photos of success.")],
     store: StoreDep,
     settings: SettingsDep,
@@ -132,11 +143,12 @@ def upload_goal_examples(
 @router.get(
     "/api/goal-examples/{example_id}/image",
     response_class=Response,
-    responses={200: {"content": {"image/png": {}, "image/jpeg": {}, "image/webp": {}}}},
+    responses={200: {"content": {"image/png": {}, "image/jpeg": {}, "image/webp": {}}}, **errors(404)},
 )
 def goal_example_image(
-    example_id: int,
+    example_id: GoalExampleId,
     store: StoreDep,
+    _auth: ReadAuth,
     kind: Annotated[Literal["original", "model", "display"], Query()] = "display",
 ) -> Response:
     """original: the upload as sent; model: what the classifier sees; display: the whole photo, max 256 px."""
@@ -147,7 +159,9 @@ def goal_example_image(
     return Response(content=data, media_type=media_type, headers=IMAGE_CACHE)
 
 
-@router.delete("/api/goal-examples/{example_id}", status_code=status.HTTP_204_NO_CONTENT)
-def delete_goal_example(example_id: int, store: StoreDep, _auth: WriteAuth) -> Response:
+@router.delete(
+    "/api/goal-examples/{example_id}", status_code=status.HTTP_204_NO_CONTENT, responses=errors(404, *WRITE_ERRORS)
+)
+def delete_goal_example(example_id: GoalExampleId, store: StoreDep, _auth: WriteAuth) -> Response:
     store.delete_goal_example(example_id=example_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -9,7 +9,11 @@ from app.schemas import HealthOut
 router = APIRouter(tags=["health"])
 
 
-@router.get("/health", response_model=HealthOut, responses={503: {"model": HealthOut}})
+@router.get(
+    "/health",
+    response_model=HealthOut,
+    responses={503: {"model": HealthOut, "description": "The database cannot be reached"}},
+)
 def health(store: StoreDep) -> HealthOut | JSONResponse:
     try:
         store.ping()

@@ -6,15 +6,27 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Form, Request
+from fastapi import APIRouter, Form, Query, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.templating import Jinja2Templates
 
-from app.deps import SESSION_COOKIE, SameOrigin, SettingsDep, StoreDep, is_authorised, session_value
+from app.deps import (
+    SESSION_COOKIE,
+    GoalSetId,
+    RunId,
+    SameOrigin,
+    SettingsDep,
+    StoreDep,
+    is_authorised,
+    new_session_secret,
+    secret_hash,
+    token_fingerprint,
+)
 from app.routers.runs import run_detail, run_out
 from app.schemas import GoalExampleOut, GoalSetOut
-from app.store import NotFound
-from learner.config import ALGORITHMS, TrainConfig
+from app.store import INT32_MAX, NotFound, QueryStatus
+from learner.algorithms import ALGORITHM_SPECS
+from learner.config import TrainConfig
 
 TEMPLATES_DIR = Path(__file__).resolve().parent.parent.parent / "templates"
 templates = Jinja2Templates(directory=TEMPLATES_DIR)
@@ -22,14 +34,7 @@ templates = Jinja2Templates(directory=TEMPLATES_DIR)
 router = APIRouter(include_in_schema=False)
 
 FALLBACK_TASKS: dict[str, str] = {"pusher": "VisualPusher-v0", "door": "VisualDoor-v0", "picker": "VisualPicker-v0"}
-ALGORITHM_LABELS: dict[str, str] = {
-    "vice_raq": "VICE-RAQ: goal photos + active yes/no queries (recommended)",
-    "vice": "VICE: goal photos only, no queries",
-    "raq": "RAQ: goal photos + queries, negatives from the first epoch",
-    "naive_classifier": "Naive classifier: trained once on goal photos",
-    "sparse": "Sparse: the simulator's true success reward (no goal photos)",
-}
-SESSION_MAX_AGE = 30 * 24 * 3600
+OptionalId = Annotated[int | None, Query(ge=1, le=INT32_MAX)]
 
 
 @dataclass(frozen=True)
@@ -57,11 +62,11 @@ def available_tasks() -> tuple[Task, ...]:
 
 
 def _page(request: Request, template: str, settings: Any, store: Any, status_code: int = 200, **context: Any):
-    pending = len(store.pending_queries(limit=10_000))
+    authorised = is_authorised(request, settings, store)
     base = {
         "auth_required": bool(settings.api_token),
-        "authorised": is_authorised(request, settings),
-        "pending_total": pending,
+        "authorised": authorised,
+        "pending_total": store.count_queries(status=QueryStatus.PENDING) if authorised else 0,
         "path": request.url.path,
         "stale_after_seconds": settings.stale_heartbeat_seconds,
     }
@@ -79,7 +84,7 @@ def runs_page(request: Request, settings: SettingsDep, store: StoreDep):
 
 
 @router.get("/runs/new", response_class=HTMLResponse)
-def new_run_page(request: Request, settings: SettingsDep, store: StoreDep, goal_set: int | None = None):
+def new_run_page(request: Request, settings: SettingsDep, store: StoreDep, goal_set: OptionalId = None):
     defaults = TrainConfig()
     goal_sets = [GoalSetOut.of(goal_set_row, count) for goal_set_row, count in store.list_goal_sets()]
     return _page(
@@ -89,7 +94,7 @@ def new_run_page(request: Request, settings: SettingsDep, store: StoreDep, goal_
         store,
         title="New run",
         tasks=available_tasks(),
-        algorithms=[(name, ALGORITHM_LABELS.get(name, name)) for name in ALGORITHMS],
+        algorithms=[(name, spec.label) for name, spec in ALGORITHM_SPECS.items()],
         goal_sets=goal_sets,
         selected_goal_set=goal_set,
         defaults=defaults,
@@ -97,7 +102,7 @@ def new_run_page(request: Request, settings: SettingsDep, store: StoreDep, goal_
 
 
 @router.get("/runs/{run_id}", response_class=HTMLResponse)
-def run_page(run_id: int, request: Request, settings: SettingsDep, store: StoreDep):
+def run_page(run_id: RunId, request: Request, settings: SettingsDep, store: StoreDep):
     try:
         run = run_detail(store, store.get_run(run_id=run_id))
     except NotFound as error:
@@ -129,7 +134,7 @@ def goal_sets_page(request: Request, settings: SettingsDep, store: StoreDep):
 
 
 @router.get("/goal-sets/{goal_set_id}", response_class=HTMLResponse)
-def goal_set_page(goal_set_id: int, request: Request, settings: SettingsDep, store: StoreDep):
+def goal_set_page(goal_set_id: GoalSetId, request: Request, settings: SettingsDep, store: StoreDep):
     try:
         goal_set = store.get_goal_set(goal_set_id=goal_set_id)
     except NotFound as error:
@@ -148,7 +153,7 @@ def goal_set_page(goal_set_id: int, request: Request, settings: SettingsDep, sto
 
 
 @router.get("/queue", response_class=HTMLResponse)
-def queue_page(request: Request, settings: SettingsDep, store: StoreDep, run: int | None = None):
+def queue_page(request: Request, settings: SettingsDep, store: StoreDep, run: OptionalId = None):
     run_summary = None
     if run is not None:
         try:
@@ -170,28 +175,52 @@ def login_page(request: Request, settings: SettingsDep, store: StoreDep, next: s
     return _page(request, "login.html", settings, store, title="Log in", next=_local_path(next), error=None)
 
 
+def _client_address(request: Request) -> str:
+    return request.client.host if request.client else "unknown"
+
+
 @router.post("/login", response_model=None)
 def login(
     request: Request,
     settings: SettingsDep,
     store: StoreDep,
     _origin: SameOrigin,
-    token: Annotated[str, Form()] = "",
-    next: Annotated[str, Form()] = "/",
+    token: Annotated[str, Form(max_length=1000)] = "",
+    next: Annotated[str, Form(max_length=2000)] = "/",
 ) -> Response:
+    """A right token starts a server-side session (the cookie holds its random secret); failed attempts are
+    limited per client address (429 with Retry-After once over RAQ_LOGIN_ATTEMPTS_PER_MINUTE)."""
     target = _local_path(next)
     if not settings.api_token:
         return RedirectResponse(target, status_code=303)
+    limit = request.app.state.login_limit
+    client = _client_address(request)
+    wait = limit.retry_after(client)
+    if wait is not None:
+        refused = _page(
+            request, "login.html", settings, store, status_code=429, title="Log in", next=target,
+            error=f"Too many wrong tokens from your address: try again in {wait} s.",
+        )  # fmt: skip
+        refused.headers["Retry-After"] = str(wait)
+        return refused
     if not hmac.compare_digest(token.strip().encode(), settings.api_token.encode()):
+        limit.failed(client)
         return _page(
             request, "login.html", settings, store, status_code=401, title="Log in", next=target,
             error="That token is not right.",
         )  # fmt: skip
+    secret = new_session_secret()
+    store.create_session(
+        secret_hash=secret_hash(secret),
+        token_fingerprint=token_fingerprint(settings.api_token),
+        max_age_seconds=settings.session_max_age_seconds,
+        client=f"{client} {request.headers.get('user-agent', '')}",
+    )
     response = RedirectResponse(target, status_code=303)
     response.set_cookie(
         SESSION_COOKIE,
-        session_value(settings.api_token),
-        max_age=SESSION_MAX_AGE,
+        secret,
+        max_age=settings.session_max_age_seconds,
         httponly=True,
         samesite="strict",
         secure=request.url.scheme == "https",
@@ -201,7 +230,11 @@ def login(
 
 
 @router.post("/logout", response_model=None)
-def logout(_origin: SameOrigin) -> Response:
-    response = RedirectResponse("/", status_code=303)
+def logout(request: Request, store: StoreDep, _origin: SameOrigin) -> Response:
+    """Ends the session on the server (the cookie alone no longer works) and drops the cookie."""
+    secret = request.cookies.get(SESSION_COOKIE, "")
+    if secret:
+        store.end_session(secret_hash=secret_hash(secret))
+    response = RedirectResponse("/login" if request.app.state.settings.api_token else "/", status_code=303)
     response.delete_cookie(SESSION_COOKIE, path="/")
     return response

@@ -4,20 +4,21 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Response
 
-from app.deps import StoreDep, WriteAuth
+from app.deps import QueryId, ReadAuth, StoreDep, WriteAuth
 from app.routers.runs import run_out
-from app.schemas import AnswerIn, GoalExampleOut, QueryOut, QueueItem, SkipIn
-from app.store import NotFound, QueryStatus
+from app.schemas import WRITE_ERRORS, AnswerIn, GoalExampleOut, QueryOut, QueueItem, SkipIn, errors
+from app.store import INT32_MAX, NotFound, QueryStatus
 
-router = APIRouter(prefix="/api/queries", tags=["queries"])
+router = APIRouter(prefix="/api/queries", tags=["queries"], responses=errors(401))
 
-PENDING_COUNT_LIMIT = 100_000
+RunFilter = Annotated[int | None, Query(ge=1, le=INT32_MAX, description="Only this run's queries.")]
 
 
 @router.get("", response_model=list[QueryOut])
 def list_queries(
     store: StoreDep,
-    run_id: int | None = None,
+    _auth: ReadAuth,
+    run_id: RunFilter = None,
     status: Annotated[Literal["pending", "answered", "skipped"] | None, Query()] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 200,
 ) -> list[QueryOut]:
@@ -26,14 +27,16 @@ def list_queries(
     return [QueryOut.of(query) for query in rows]
 
 
-@router.get("/next", response_model=QueueItem)
-def next_query(store: StoreDep, run_id: int | None = None) -> QueueItem:
-    """The oldest pending query (of one run, or of all), its run and the run's goal photos."""
+@router.get("/next", response_model=QueueItem, responses=errors(404))
+def next_query(store: StoreDep, _auth: ReadAuth, run_id: RunFilter = None) -> QueueItem:
+    """The oldest pending query (of one run, or of all), its run and the run's goal photos: one indexed lookup
+    and two COUNTs, however many queries are pending."""
     if run_id is not None:
         store.get_run(run_id=run_id)
-    pending = store.pending_queries(run_id=run_id, limit=PENDING_COUNT_LIMIT)
-    pending_all_runs = len(pending) if run_id is None else len(store.pending_queries(limit=PENDING_COUNT_LIMIT))
-    if not pending:
+    query = store.next_pending_query(run_id=run_id)
+    pending_all_runs = store.count_queries(status=QueryStatus.PENDING)
+    pending = pending_all_runs if run_id is None else store.count_queries(run_id=run_id, status=QueryStatus.PENDING)
+    if query is None:
         run = store.get_run(run_id=run_id) if run_id is not None else None
         return QueueItem(
             query=None,
@@ -42,7 +45,6 @@ def next_query(store: StoreDep, run_id: int | None = None) -> QueueItem:
             run=run_out(store, run) if run else None,
             goal_examples=[],
         )
-    query = pending[0]
     run = store.get_run(run_id=query.run_id)
     examples: list[GoalExampleOut] = []
     if run.goal_set_id is not None:
@@ -52,22 +54,25 @@ def next_query(store: StoreDep, run_id: int | None = None) -> QueueItem:
             examples = []
     return QueueItem(
         query=QueryOut.of(query),
-        pending=len(pending),
+        pending=pending,
         pending_all_runs=pending_all_runs,
         run=run_out(store, run),
         goal_examples=examples,
     )
 
 
-@router.get("/{query_id}", response_model=QueryOut)
-def get_query(query_id: int, store: StoreDep) -> QueryOut:
+@router.get("/{query_id}", response_model=QueryOut, responses=errors(404))
+def get_query(query_id: QueryId, store: StoreDep, _auth: ReadAuth) -> QueryOut:
     return QueryOut.of(store.get_query(query_id=query_id))
 
 
-@router.get("/{query_id}/image", response_class=Response, responses={200: {"content": {"image/png": {}}}})
+@router.get(
+    "/{query_id}/image", response_class=Response, responses={200: {"content": {"image/png": {}}}, **errors(404)}
+)
 def query_image(
-    query_id: int,
+    query_id: QueryId,
     store: StoreDep,
+    _auth: ReadAuth,
     resolution: Annotated[Literal["model", "display"], Query()] = "display",
 ) -> Response:
     """model: the observation the learner scored (e.g. 48x48); display: the larger render of the same state."""
@@ -75,18 +80,18 @@ def query_image(
     return Response(content=data, media_type="image/png", headers={"Cache-Control": "private, max-age=86400"})
 
 
-@router.post("/{query_id}/answer", response_model=QueryOut, responses={409: {"description": "Answered otherwise"}})
-def answer_query(query_id: int, body: AnswerIn, store: StoreDep, _auth: WriteAuth) -> QueryOut:
+@router.post("/{query_id}/answer", response_model=QueryOut, responses=errors(404, 409, *WRITE_ERRORS))
+def answer_query(query_id: QueryId, body: AnswerIn, store: StoreDep, _auth: WriteAuth) -> QueryOut:
     """The same answer twice is fine; a different second answer is 409 and the first is kept."""
     return QueryOut.of(store.answer_query(query_id=query_id, success=body.success, labeler=body.labeler))
 
 
-@router.post("/{query_id}/skip", response_model=QueryOut)
-def skip_query(query_id: int, store: StoreDep, _auth: WriteAuth, body: SkipIn | None = None) -> QueryOut:
+@router.post("/{query_id}/skip", response_model=QueryOut, responses=errors(404, 409, *WRITE_ERRORS))
+def skip_query(query_id: QueryId, store: StoreDep, _auth: WriteAuth, body: SkipIn | None = None) -> QueryOut:
     return QueryOut.of(store.skip_query(query_id=query_id, labeler=body.labeler if body else ""))
 
 
-@router.post("/{query_id}/undo", response_model=QueryOut, responses={409: {"description": "Already used"}})
-def undo_answer(query_id: int, store: StoreDep, _auth: WriteAuth) -> QueryOut:
+@router.post("/{query_id}/undo", response_model=QueryOut, responses=errors(404, 409, *WRITE_ERRORS))
+def undo_answer(query_id: QueryId, store: StoreDep, _auth: WriteAuth) -> QueryOut:
     """Back to pending, while the learner has not used the answer (409 once it has)."""
     return QueryOut.of(store.undo_answer(query_id=query_id))

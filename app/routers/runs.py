@@ -5,15 +5,17 @@ from typing import Any
 import pydantic
 from fastapi import APIRouter, HTTPException, Response, status
 
-from app.deps import StoreDep, WriteAuth
-from app.schemas import RolloutOut, RunCreate, RunDetail, RunOut
+from app.deps import ReadAuth, RunId, SettingsDep, StoreDep, WriteAuth
+from app.schemas import WRITE_ERRORS, RolloutOut, RunCreate, RunDetail, RunOut, errors
+from app.settings import Settings
 from app.store import NotFound, Run, Store
-from learner.config import TrainConfig
+from learner.algorithms import ALGORITHM_SPECS
+from learner.config import TrainConfig, host_cuda_devices, host_memory_bytes
+from learner.envs import env_id_problem
 
-router = APIRouter(prefix="/api/runs", tags=["runs"])
+router = APIRouter(prefix="/api/runs", tags=["runs"], responses=errors(401))
 
 TOP_LEVEL_FIELDS = ("env_id", "algorithm", "seed")
-ALGORITHMS_WITHOUT_GOALS = ("sparse",)
 _config_adapter = pydantic.TypeAdapter(TrainConfig)
 
 
@@ -40,8 +42,9 @@ def _field_error(location: list[str | int], field: str, message: str) -> dict[st
     return {"loc": location, "msg": f"{field}: {message}", "type": "value_error"}
 
 
-def validate_run_config(body: RunCreate) -> TrainConfig:
-    """The body's settings as a TrainConfig, or HTTP 422 whose detail names every bad field."""
+def validate_run_config(body: RunCreate, settings: Settings) -> TrainConfig:
+    """The body's settings as a TrainConfig, or HTTP 422 whose detail names every bad field: a value out of its
+    bounds, more than this host can run (memory, GPU), or an env id that is not registered or allowed."""
     values = dict(body.config)
     given_on_top = {name for name in TOP_LEVEL_FIELDS if getattr(body, name) is not None}
     for name in given_on_top:
@@ -57,7 +60,7 @@ def validate_run_config(body: RunCreate) -> TrainConfig:
             status_code=422, detail=[_field_error(location(name), name, "unknown config field") for name in unknown]
         )
     try:
-        return _config_adapter.validate_python(values)
+        config = _config_adapter.validate_python(values)
     except pydantic.ValidationError as error:
         detail = []
         for item in error.errors(include_url=False):
@@ -69,6 +72,15 @@ def validate_run_config(body: RunCreate) -> TrainConfig:
                 field, _, message = cause.partition(": ")
                 detail.append(_field_error(location(field), field, message or cause))
         raise HTTPException(status_code=422, detail=detail) from None
+    problems = config.resource_errors(memory_bytes=host_memory_bytes(), cuda_devices=host_cuda_devices())
+    env_problem = env_id_problem(config.env_id, allowed_modules=settings.env_modules)
+    if env_problem:
+        problems.append(("env_id", env_problem))
+    if problems:
+        raise HTTPException(
+            status_code=422, detail=[_field_error(location(field), field, message) for field, message in problems]
+        )
+    return config
 
 
 def _goal_set_error(message: str) -> HTTPException:
@@ -77,8 +89,10 @@ def _goal_set_error(message: str) -> HTTPException:
 
 def check_goal_set(store: Store, *, algorithm: str, goal_set_id: int | None) -> None:
     """Every algorithm but sparse learns its reward from goal examples: it needs a set with at least one."""
+    spec = ALGORITHM_SPECS.get(algorithm)
+    needs_goals = spec is None or spec.needs_goals  # (an unknown algorithm is refused by the config's check)
     if goal_set_id is None:
-        if algorithm in ALGORITHMS_WITHOUT_GOALS:
+        if not needs_goals:
             return
         raise _goal_set_error(
             f"algorithm {algorithm!r} learns its reward from goal photos: choose a goal set "
@@ -88,15 +102,15 @@ def check_goal_set(store: Store, *, algorithm: str, goal_set_id: int | None) -> 
         store.get_goal_set(goal_set_id=goal_set_id)
     except NotFound:
         raise _goal_set_error(f"goal set {goal_set_id} not found") from None
-    if algorithm not in ALGORITHMS_WITHOUT_GOALS and not store.list_goal_examples(goal_set_id=goal_set_id):
+    if needs_goals and not store.list_goal_examples(goal_set_id=goal_set_id):
         raise _goal_set_error(
             f"goal set {goal_set_id} has no goal photos yet; upload at least one before starting a {algorithm!r} run"
         )
 
 
-@router.post("", status_code=status.HTTP_201_CREATED, response_model=RunDetail)
-def create_run(body: RunCreate, store: StoreDep, _auth: WriteAuth) -> RunDetail:
-    config = validate_run_config(body)
+@router.post("", status_code=status.HTTP_201_CREATED, response_model=RunDetail, responses=errors(*WRITE_ERRORS))
+def create_run(body: RunCreate, store: StoreDep, settings: SettingsDep, _auth: WriteAuth) -> RunDetail:
+    config = validate_run_config(body, settings)
     check_goal_set(store, algorithm=config.algorithm, goal_set_id=body.goal_set_id)
     run = store.create_run(
         env_id=config.env_id,
@@ -111,23 +125,23 @@ def create_run(body: RunCreate, store: StoreDep, _auth: WriteAuth) -> RunDetail:
 
 
 @router.get("", response_model=list[RunOut])
-def list_runs(store: StoreDep) -> list[RunOut]:
+def list_runs(store: StoreDep, _auth: ReadAuth) -> list[RunOut]:
     return [run_out(store, run) for run in store.list_runs()]
 
 
-@router.get("/{run_id}", response_model=RunDetail)
-def get_run(run_id: int, store: StoreDep) -> RunDetail:
+@router.get("/{run_id}", response_model=RunDetail, responses=errors(404))
+def get_run(run_id: RunId, store: StoreDep, _auth: ReadAuth) -> RunDetail:
     return run_detail(store, store.get_run(run_id=run_id))
 
 
-@router.post("/{run_id}/stop", response_model=RunDetail)
-def stop_run(run_id: int, store: StoreDep, _auth: WriteAuth) -> RunDetail:
+@router.post("/{run_id}/stop", response_model=RunDetail, responses=errors(404, 409, *WRITE_ERRORS))
+def stop_run(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RunDetail:
     """A queued run stops at once; an active one when its learner next beats (409 if already over)."""
     return run_detail(store, store.request_stop(run_id=run_id))
 
 
-@router.post("/{run_id}/resume", response_model=RunDetail)
-def resume_run(run_id: int, store: StoreDep, _auth: WriteAuth) -> RunDetail:
+@router.post("/{run_id}/resume", response_model=RunDetail, responses=errors(404, 409, *WRITE_ERRORS))
+def resume_run(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RunDetail:
     """Queue a stopped or failed run again; the learner resumes from its last checkpoint (409 otherwise)."""
     return run_detail(store, store.resume_run(run_id=run_id))
 
@@ -135,9 +149,12 @@ def resume_run(run_id: int, store: StoreDep, _auth: WriteAuth) -> RunDetail:
 @router.get(
     "/{run_id}/rollout/latest",
     response_class=Response,
-    responses={200: {"content": {"image/gif": {}}, "description": "The latest evaluation rollout animation."}},
+    responses={
+        200: {"content": {"image/gif": {}}, "description": "The latest evaluation rollout animation."},
+        **errors(404),
+    },
 )
-def latest_rollout(run_id: int, store: StoreDep) -> Response:
+def latest_rollout(run_id: RunId, store: StoreDep, _auth: ReadAuth) -> Response:
     store.get_run(run_id=run_id)
     rollout = store.latest_rollout(run_id=run_id)
     if rollout is None:

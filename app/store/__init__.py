@@ -1,10 +1,25 @@
 """The store the learner and the server share: models and keyword-only functions, no torch, no FastAPI."""
 
 from app.store.errors import Conflict, InvalidInput, NotFound, StoreError
-from app.store.models import GoalExample, GoalSet, Metric, Query, QueryStatus, Rollout, Run, RunStatus
+from app.store.models import (
+    INT32_MAX,
+    INT64_MAX,
+    GoalExample,
+    GoalSet,
+    LoginSession,
+    Metric,
+    Query,
+    QueryStatus,
+    Rollout,
+    Run,
+    RunStatus,
+)
 from app.store.store import AnsweredQuery, GoalImage, Store, seconds_since
 
 __all__ = [
+    "INT32_MAX",
+    "INT64_MAX",
+    "LoginSession",
     "AnsweredQuery",
     "Conflict",
     "GoalExample",

@@ -49,6 +49,12 @@ class Base(DeclarativeBase):
     pass
 
 
+# The largest value an Integer / BigInteger column holds on every backend (PostgreSQL's INTEGER is 32-bit,
+# SQLite's INTEGER and BigInteger are 64-bit). The API refuses ids and numbers beyond their column's range.
+INT32_MAX = 2**31 - 1
+INT64_MAX = 2**63 - 1
+
+
 class RunStatus:
     QUEUED = "queued"
     STARTING = "starting"
@@ -116,7 +122,9 @@ class Run(Base):
 
 class Query(Base):
     __tablename__ = "queries"
-    __table_args__ = (Index("ix_queries_run_status", "run_id", "status"),)
+    # (run_id, status) and (status, id): the oldest pending query, of one run or of all, is one index lookup
+    # (SQLite appends the rowid, i.e. id, to every index), and pending counts are index-only.
+    __table_args__ = (Index("ix_queries_run_status", "run_id", "status"), Index("ix_queries_status_id", "status", "id"))
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
@@ -173,3 +181,18 @@ class Rollout(Base):
     success: Mapped[float | None] = mapped_column(Float)
     data: Mapped[bytes] = deferred(mapped_column(LargeBinary, nullable=False))
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class LoginSession(Base):
+    """A browser's login: the cookie holds a random secret, this row only its SHA-256. Deleting the row (logout,
+    `raq sessions --end-all`) ends the session; so does changing RAQ_API_TOKEN (the row keeps a keyed hash of the
+    token it was made under)."""
+
+    __tablename__ = "login_sessions"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    secret_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    token_fingerprint: Mapped[str] = mapped_column(String(64))
+    client: Mapped[str] = mapped_column(String(200), default="")
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    expires_at: Mapped[datetime] = mapped_column(UTCDateTime, index=True)

@@ -19,6 +19,7 @@ from app.store.models import (
     Event,
     GoalExample,
     GoalSet,
+    LoginSession,
     Metric,
     Query,
     QueryStatus,
@@ -395,20 +396,40 @@ class Store(Database):
     def pending_queries(self, *, run_id: int | None = None, limit: int = 200) -> list[Query]:
         return self.list_queries(run_id=run_id, status=QueryStatus.PENDING, limit=limit, oldest_first=True)
 
+    def next_pending_query(self, *, run_id: int | None = None) -> Query | None:
+        """The oldest pending query (of one run, or of all): one lookup in ix_queries_run_status / _status_id."""
+        statement = select(Query).where(Query.status == QueryStatus.PENDING)
+        if run_id is not None:
+            statement = statement.where(Query.run_id == run_id)
+        with self.reading() as session:
+            return session.scalars(statement.order_by(Query.id).limit(1)).first()
+
+    def count_queries(self, *, run_id: int | None = None, status: str | None = None) -> int:
+        """SELECT COUNT(*), answered from the (run_id, status) / (status, id) indexes."""
+        statement = select(func.count()).select_from(Query)
+        if run_id is not None:
+            statement = statement.where(Query.run_id == run_id)
+        if status is not None:
+            statement = statement.where(Query.status == status)
+        with self.reading() as session:
+            return int(session.scalar(statement) or 0)
+
     def query_counts(self, *, run_id: int) -> dict[str, int]:
         """asked, pending, answered, yes, skipped."""
+        # By status from the (run_id, status) index alone; "yes" visits only the answered rows.
         with self.reading() as session:
             rows = session.execute(
-                select(Query.status, Query.answer, func.count())
-                .where(Query.run_id == run_id)
-                .group_by(Query.status, Query.answer)
+                select(Query.status, func.count()).where(Query.run_id == run_id).group_by(Query.status)
             ).all()
-        counts = {"asked": 0, "pending": 0, "answered": 0, "yes": 0, "skipped": 0}
-        for status, answer, n in rows:
+            yes = session.scalar(
+                select(func.count())
+                .select_from(Query)
+                .where(Query.run_id == run_id, Query.status == QueryStatus.ANSWERED, Query.answer.is_(True))
+            )
+        counts = {"asked": 0, "pending": 0, "answered": 0, "yes": int(yes or 0), "skipped": 0}
+        for status, n in rows:
             counts["asked"] += n
             counts[status] = counts.get(status, 0) + n
-            if status == QueryStatus.ANSWERED and answer:
-                counts["yes"] += n
         return counts
 
     def query_image(self, *, query_id: int, resolution: str) -> bytes:
@@ -621,6 +642,54 @@ class Store(Database):
         with self.writing() as session:
             result = session.execute(delete(Metric).where(Metric.run_id == run_id, Metric.step > step))
             return int(result.rowcount or 0)
+
+    # ---------------------------------------------------------------- login sessions
+    def create_session(
+        self, *, secret_hash: str, token_fingerprint: str, max_age_seconds: float, client: str = ""
+    ) -> None:
+        """Record a login: the caller keeps the secret (in the cookie), the store only its hash. Expired
+        sessions are deleted on the way."""
+        now = utcnow()
+        with self.writing() as session:
+            session.execute(delete(LoginSession).where(LoginSession.expires_at <= now))
+            session.add(
+                LoginSession(
+                    secret_hash=secret_hash,
+                    token_fingerprint=token_fingerprint,
+                    client=client[:200],
+                    created_at=now,
+                    expires_at=now + timedelta(seconds=max_age_seconds),
+                )
+            )
+
+    def session_is_active(self, *, secret_hash: str, token_fingerprint: str) -> bool:
+        """True while the session exists, has not expired and was made under the current API token."""
+        with self.reading() as session:
+            found = session.scalar(
+                select(LoginSession.id).where(
+                    LoginSession.secret_hash == secret_hash,
+                    LoginSession.token_fingerprint == token_fingerprint,
+                    LoginSession.expires_at > utcnow(),
+                )
+            )
+            return found is not None
+
+    def end_session(self, *, secret_hash: str) -> bool:
+        with self.writing() as session:
+            deleted = session.execute(delete(LoginSession).where(LoginSession.secret_hash == secret_hash)).rowcount
+            return bool(deleted)
+
+    def end_all_sessions(self) -> int:
+        """Log every browser out; returns how many sessions there were."""
+        with self.writing() as session:
+            return int(session.execute(delete(LoginSession)).rowcount or 0)
+
+    def count_sessions(self) -> int:
+        with self.reading() as session:
+            return int(
+                session.scalar(select(func.count()).select_from(LoginSession).where(LoginSession.expires_at > utcnow()))
+                or 0
+            )
 
     # ---------------------------------------------------------------- helpers
     def ping(self) -> bool:
