@@ -1,0 +1,153 @@
+"""The whole training loop against its update bound: is the loop as fast as its SAC updates allow?
+
+    MUJOCO_GL=egl python bench/loop_speed.py [--steps 3000] [--task pusher] [--threads N]
+
+Runs the real loop (`learner.train.Trainer`: env, replay, f_psi scoring of every observation, queries posted to a
+real SQLite store and answered from another thread, the classifier's epochs, evaluations, metrics, heartbeats)
+for `--steps` env steps after the 1,000-step random warm-up, on the default configuration. It times the SAC
+updates inside that same run (sampling, rewards f_psi(s') and the update itself), so both figures share the
+machine's state:
+
+    E = env steps per second of the loop after the warm-up, everything included;
+    U = updates per second of the SAC updates alone (the bound: one update per env step);
+    R = E / U, the share of the update bound the loop reaches.
+
+The last line reads `loop: E env steps/s end to end, U updates/s update-bound, ratio R`. Before it, the loop's
+time outside the updates is split by part (ms per env step).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import threading
+import time
+from collections import defaultdict
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import torch  # noqa: E402
+
+from app.demo import add_simulated_goal_set  # noqa: E402
+from app.migrate import upgrade  # noqa: E402
+from app.store import Store  # noqa: E402
+from learner.config import TrainConfig  # noqa: E402
+from learner.networks import resolve_precision  # noqa: E402
+from learner.train import Trainer  # noqa: E402
+from sim import TASKS  # noqa: E402
+
+WARM_UP = 1000
+
+
+class PartTimer:
+    """Wall seconds spent in chosen methods of the trainer once switched on; a call made inside another timed
+    call (acting during an evaluation) counts for the outer one only."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = defaultdict(float)
+        self.on = False  # switched on at the end of the warm-up
+        self.inside = False
+
+    def wrap(self, owner: Any, name: str, part: str) -> None:
+        original: Callable[..., Any] = getattr(owner, name)
+
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            if self.inside or not self.on:
+                return original(*args, **kwargs)
+            self.inside = True
+            start = time.perf_counter()
+            try:
+                return original(*args, **kwargs)
+            finally:
+                self.seconds[part] += time.perf_counter() - start
+                self.inside = False
+
+        setattr(owner, name, timed)
+
+
+def answer_everything(store: Store, run_id: int, done: threading.Event) -> None:
+    """A labeller that answers each pending query from its ground truth, as `raq oracle` does."""
+    while not done.wait(0.5):
+        for query in store.pending_queries(run_id=run_id):
+            store.answer_query(query_id=query.id, success=bool(query.ground_truth_success), labeler="bench")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--steps", type=int, default=3000, help="env steps timed after the warm-up")
+    parser.add_argument("--task", choices=sorted(TASKS), default="pusher")
+    parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
+    parser.add_argument("--query-every", type=int, default=1000, help="a query every this many env steps")
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    config = TrainConfig(
+        env_id=TASKS[args.task], total_steps=WARM_UP + args.steps, query_every=args.query_every,
+        query_budget=1000, checkpoint_every=10**9,
+    )  # fmt: skip
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} threads, {config.env_id}, default config, "
+        f"precision {config.precision} -> {resolve_precision(config.precision)}; {args.steps} env steps timed",
+        flush=True,
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        url = f"sqlite:///{Path(tmp) / 'raq.sqlite3'}"
+        upgrade(url)
+        store = Store(url)
+        goal_set_id = add_simulated_goal_set(store, task=args.task, name="goals", count=10)
+        run = store.create_run(
+            env_id=config.env_id, algorithm=config.algorithm, config=config.to_dict(), seed=0,
+            goal_set_id=goal_set_id, total_steps=config.total_steps,
+        )  # fmt: skip
+        store.claim_next_run(worker="bench")
+        trainer = Trainer(
+            config, store=store, run_id=run.id, worker="bench", goal_set_id=goal_set_id,
+            checkpoint_file=Path(tmp) / "checkpoint.pt",
+        )  # fmt: skip
+        timer = PartTimer()
+        timer.wrap(trainer, "_sac_updates", "SAC updates")
+        timer.wrap(trainer, "_end_of_epoch", "classifier epochs")
+        timer.wrap(trainer, "_evaluate", "evaluation")
+        timer.wrap(trainer, "_observe", "query scoring")
+        timer.wrap(trainer, "_log", "metrics")
+        timer.wrap(trainer.env, "step", "env step")
+        timer.wrap(trainer.agent, "act", "acting")
+        started: list[float] = []
+        original_after_step = trainer._after_step
+
+        def after_step() -> None:
+            original_after_step()
+            if trainer.counters.step == WARM_UP:
+                timer.on = True
+                started.append(time.perf_counter())
+
+        trainer._after_step = after_step  # type: ignore[method-assign]
+        done = threading.Event()
+        labeller = threading.Thread(target=answer_everything, args=(store, run.id, done), daemon=True)
+        labeller.start()
+        try:
+            trainer.train()
+            elapsed = time.perf_counter() - started[0]
+        finally:
+            done.set()
+            labeller.join()
+            trainer.close()
+            store.dispose()
+    steps = args.steps
+    update_seconds = timer.seconds["SAC updates"]
+    e, u = steps / elapsed, steps * config.updates_per_step / update_seconds
+    print("ms per env step: " + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.seconds.items()))
+    other = elapsed - sum(timer.seconds.values())
+    print(f"ms per env step outside the timed parts (replay, bookkeeping, heartbeats): {1000 * other / steps:.1f}")
+    print(f"loop: {e:.1f} env steps/s end to end, {u:.1f} updates/s update-bound, ratio {e / u:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
