@@ -21,7 +21,8 @@ INT_MAXIMA: dict[str, int] = {
     "feature_dim": 4096, "classifier_batch_size": 4096, "classifier_steps": 100_000, "epoch_steps": 1_000_000,
     "naive_classifier_steps": 1_000_000, "raq_initial_negatives": 1_000_000, "query_every": 1_000_000_000,
     "query_budget": 100_000, "eval_every": 1_000_000_000, "eval_episodes": 1000, "checkpoint_every": 1_000_000_000,
-    "display_size": 1024, "rollout_size": 512, "query_candidates": 1024, "log_every": 1_000_000_000,
+    "display_size": 1024, "rollout_size": 512, "query_candidates": 1024, "query_score_batch": 4096,
+    "log_every": 1_000_000_000,
 }  # fmt: skip
 FLOAT_MAXIMA: dict[str, float] = {
     "actor_lr": 1.0, "critic_lr": 1.0, "alpha_lr": 1.0, "classifier_lr": 1.0, "initial_alpha": 1e6,
@@ -151,6 +152,9 @@ class TrainConfig:
     """Side of the frames of the evaluation rollout GIF."""
     query_candidates: int = 32
     """Best-scoring observations since the last query kept with their display render; the query is the best of them."""
+    query_score_batch: int = 64
+    """Observations f_psi scores together as query candidates, for envs that can snapshot their state (the
+    simulated tasks; the display render of a kept one is taken from its snapshot); 1, or other envs: each at once."""
     log_every: int = 250
     """Environment steps between training-metric records (answers are also read this often)."""
     heartbeat_seconds: float = 5.0
@@ -168,7 +172,7 @@ class TrainConfig:
         positive_ints = (
             "image_size", "total_steps", "episode_steps", "batch_size", "updates_per_step", "replay_capacity",
             "conv_filters", "hidden_dim", "classifier_batch_size", "epoch_steps", "query_every", "eval_every",
-            "checkpoint_every", "display_size", "rollout_size", "query_candidates", "log_every",
+            "checkpoint_every", "display_size", "rollout_size", "query_candidates", "query_score_batch", "log_every",
         )  # fmt: skip
         for field in fields(self):
             value = getattr(self, field.name)
@@ -229,6 +233,7 @@ class TrainConfig:
         frame = self.image_size * self.image_size * 3
         replay = 2 * self.replay_capacity * frame
         candidates = self.query_candidates * (frame + self.display_size * self.display_size * 3)
+        candidates += self.query_score_batch * frame
         negatives = self.raq_initial_negatives * frame
         batches = (2 * self.batch_size + 2 * self.classifier_batch_size) * frame * 4 * 8
         return replay + candidates + negatives + batches

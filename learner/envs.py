@@ -165,6 +165,26 @@ def display_image(env: gym.Env, size: int, fallback: np.ndarray) -> np.ndarray:
     return frame
 
 
+def snapshot_of(env: gym.Env) -> Any | None:
+    """The env's state snapshot when it can take one (`state_snapshot()` / `restore_snapshot(s)` on the unwrapped
+    env, as the simulated tasks have), else None."""
+    unwrapped = env.unwrapped
+    if hasattr(unwrapped, "state_snapshot") and hasattr(unwrapped, "restore_snapshot"):
+        return unwrapped.state_snapshot()
+    return None
+
+
+def display_of_snapshot(env: gym.Env, snapshot: Any, size: int, fallback: np.ndarray) -> np.ndarray:
+    """`display_image` of the state `snapshot` was taken of; the env is left in the state it was in."""
+    unwrapped = env.unwrapped
+    current = unwrapped.state_snapshot()
+    unwrapped.restore_snapshot(snapshot)
+    try:
+        return display_image(env, size, fallback)
+    finally:
+        unwrapped.restore_snapshot(current)
+
+
 def success_of(info: dict[str, Any]) -> float | None:
     """The env's ground-truth success flag as 0.0 / 1.0, or None when it reports none."""
     value = info.get("success") if isinstance(info, dict) else None

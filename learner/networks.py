@@ -42,7 +42,7 @@ BF16_MIN_SPEEDUP = 1.2
 
 @functools.cache
 def resolve_precision(precision: str, device_type: str = "cpu") -> str:
-    """"fp32" or "bf16": `precision` itself, or for "auto" what this machine runs faster (measured once a process).
+    """The precision to run: `precision` itself ("fp32", "bf16"), or for "auto" the faster here (measured once).
 
     CUDA: bf16 where the GPU supports it. CPU: a 256 x 1152 x 256 matmul (the encoder-to-MLP layer's shape) timed in
     fp32 and in bf16; bf16 when it is at least BF16_MIN_SPEEDUP times faster."""

@@ -6,6 +6,8 @@ A "yes" joins f_psi's positives; a "no" joins its negatives only for methods who
 for VICE-RAQ the observation is already a replay negative.
 """
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -17,6 +19,17 @@ from learner.envs import decode_image, encode_png, jsonable
 from learner.queries import QuerySelector, digest
 from learner.reward import RewardModel
 from learner.run_control import Counters, RunControl
+
+
+@dataclass
+class Pending:
+    """An observation waiting to be scored, with what a query about it needs."""
+
+    image: np.ndarray
+    render: Callable[[], np.ndarray]
+    env_step: int
+    info: dict[str, Any]
+    success: float | None
 
 
 class QueryChannel:
@@ -31,6 +44,7 @@ class QueryChannel:
         self.selector = QuerySelector(config.query_strategy, config.query_candidates)
         self.pool_negatives = ALGORITHM_SPECS[config.algorithm].negatives == "pool"
         self.asked = 0
+        self.pending: list[Pending] = []  # observations waiting to be scored in one batch
         # every answered query's image and answer, by query id: what the page shows as the classifier's
         # agreement with the person (rebuilt from the store on resume)
         self.answered: dict[int, tuple[np.ndarray, bool]] = {}
@@ -39,15 +53,36 @@ class QueryChannel:
     def budget_left(self) -> bool:
         return self.asked < self.config.query_budget
 
-    def observe(self, image: np.ndarray, info: dict[str, Any], success: float | None, render: Any) -> None:
-        """Score a new observation as a candidate; `render()` (the display view of this same state) is called now,
-        only if the observation is kept."""
+    def observe(
+        self, image: np.ndarray, info: dict[str, Any], success: float | None, render: Callable[[], np.ndarray],
+        deferred: bool = False,
+    ) -> None:  # fmt: skip
+        """Offer a new observation as a candidate; `render()` gives the display view of this same state and is
+        called only if the observation is kept. Scored now, or with `deferred` (render works later: it renders from
+        a state snapshot) with the next `query_score_batch` observations in one batch."""
         if not self.budget_left:
             return
-        score = float(self.reward_model.logits(image[None])[0])
-        self.selector.offer(
-            score, image, render, env_step=self.counters.step, info=jsonable(info), success=success
-        )  # fmt: skip
+        pending = Pending(image, render, self.counters.step, jsonable(info), success)
+        if not deferred:
+            self._offer([pending], self.reward_model.logits(image[None]))
+            return
+        self.pending.append(pending)
+        if len(self.pending) >= self.config.query_score_batch:
+            self.score_pending()
+
+    def score_pending(self) -> None:
+        """Score the observations waiting for a batch, under the current f_psi (before it changes)."""
+        if self.pending:
+            batch, self.pending = self.pending, []
+            if self.budget_left:
+                self._offer(batch, self.reward_model.logits(np.stack([p.image for p in batch])))
+
+    def _offer(self, batch: list["Pending"], scores: np.ndarray) -> None:
+        for pending, score in zip(batch, scores, strict=True):
+            self.selector.offer(
+                float(score), pending.image, pending.render, env_step=pending.env_step, info=pending.info,
+                success=pending.success,
+            )  # fmt: skip
 
     def rescore(self) -> None:
         """After a classifier update: the kept candidates under the current f_psi."""
@@ -55,6 +90,7 @@ class QueryChannel:
 
     def ask(self) -> None:
         """Post the best candidate since the last query (Alg. 2 line 6)."""
+        self.score_pending()
         if not self.budget_left:
             return
         self.rescore()

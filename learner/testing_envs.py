@@ -55,6 +55,13 @@ class DotReach(gym.Env[np.ndarray, np.ndarray]):
     def render(self) -> np.ndarray | None:
         return self._draw(self.render_size) if self.render_mode == "rgb_array" else None
 
+    # the optional state-snapshot protocol (learner.envs.snapshot_of): its query candidates are scored in batches
+    def state_snapshot(self) -> np.ndarray:
+        return self.position.copy()
+
+    def restore_snapshot(self, snapshot: np.ndarray) -> None:
+        self.position = np.asarray(snapshot, dtype=np.float32).copy()
+
 
 if "DotReach-v0" not in gym.registry:
     gym.register(id="DotReach-v0", entry_point="learner.testing_envs:DotReach", max_episode_steps=50)

@@ -10,6 +10,7 @@ outcome of the step. Episodes end on the time limit only (no terminal on success
 """
 
 import contextlib
+import functools
 import io
 import json
 import threading
@@ -27,7 +28,16 @@ from app.store import Run, RunStatus, Store
 from learner.algorithms import ALGORITHM_SPECS
 from learner.checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
 from learner.config import TrainConfig
-from learner.envs import check_action_space, display_image, make_env, model_image, scale_action, success_of
+from learner.envs import (
+    check_action_space,
+    display_image,
+    display_of_snapshot,
+    make_env,
+    model_image,
+    scale_action,
+    snapshot_of,
+    success_of,
+)
 from learner.evaluation import Evaluator
 from learner.networks import resolve_precision
 from learner.query_channel import QueryChannel
@@ -86,14 +96,12 @@ class Trainer:
         self.agent = SACAgent(config, self.action_dim)
         self.replay = ReplayBuffer(config.replay_capacity, (size, size, 3), self.action_dim)
         self.reward_model = RewardModel(config, self.rng) if self.spec.classifier else None
-        self.queries = (
-            QueryChannel(
+        self.queries: QueryChannel | None = None
+        if self.spec.queries and self.reward_model is not None:
+            self.queries = QueryChannel(
                 config, store=store, run_id=run_id, reward_model=self.reward_model, counters=self.counters,
                 control=self.control,
             )  # fmt: skip
-            if self.spec.queries and self.reward_model is not None
-            else None
-        )
         self.evaluator = Evaluator(
             config, env=self.eval_env, agent=self.agent, reward_model=self.reward_model, store=store, run_id=run_id,
             control=self.control,
@@ -237,10 +245,17 @@ class Trainer:
         self._observe(self.obs, info, success_of(info))
 
     def _observe(self, image: np.ndarray, info: dict[str, Any], success: float | None) -> None:
-        """Offer a new observation to the query channel; its display render would be of this same state."""
-        if self.queries is not None:
-            size = self.config.display_size
-            self.queries.observe(image, info, success, lambda: display_image(self.env, size, image))
+        """Offer a new observation to the query channel; its display render is of this same state: rendered now
+        if it is kept, or later from a snapshot of the state when the env can take one (then scored in a batch)."""
+        if self.queries is None or not self.queries.budget_left:
+            return
+        size = self.config.display_size
+        snapshot = snapshot_of(self.env) if self.config.query_score_batch > 1 else None
+        if snapshot is None:
+            self.queries.observe(image, info, success, functools.partial(display_image, self.env, size, image))
+        else:
+            render = functools.partial(display_of_snapshot, self.env, snapshot, size, image)
+            self.queries.observe(image, info, success, render, deferred=True)
 
     def _finish(self) -> str:
         counters = self.counters
@@ -293,6 +308,8 @@ class Trainer:
         model, cfg, counters = self.reward_model, self.config, self.counters
         if model is None:
             return
+        if self.queries is not None:  # the observations waiting for a batch are scored by the f_psi of their time
+            self.queries.score_pending()
         if self.spec.negatives == "pool" and len(model.initial_negatives) == 0:
             model.initial_negatives = self._first_epoch_negatives()
         if not self.spec.train_once:
@@ -376,6 +393,8 @@ class Trainer:
 
     # ================================================================== checkpoints
     def _checkpoint(self) -> None:
+        if self.queries is not None:  # (a checkpoint keeps scored candidates, not the observations still waiting)
+            self.queries.score_pending()
         started = time.monotonic()
         size = save_checkpoint(self.checkpoint_file, self._state())
         seconds = time.monotonic() - started

@@ -23,6 +23,7 @@ ASSETS_DIR = Path(__file__).resolve().parent / "assets"
 
 TIMESTEP_S = 0.005
 FRAME_SKIP = 10
+SNAPSHOT_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
 def _contiguous(indices: list[int]) -> slice | np.ndarray:
@@ -102,6 +103,10 @@ class SawyerMocapEnv(gym.Env[np.ndarray, np.ndarray]):
             action = action.reshape(self.action_space.shape)
         self._apply_action(np.minimum(np.maximum(action, -1.0), 1.0))
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+        # mj_step leaves positions computed before its last integration (5 ms stale): the image and the ground
+        # truth are of the state the step ended in, exactly as a state snapshot of it renders later
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_camlight(self.model, self.data)
         info = self.get_info()
         return self._observe(), float(info["success"]), False, False, info
 
@@ -134,6 +139,19 @@ class SawyerMocapEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _observe(self) -> np.ndarray:
         return self.render_image(self.image_size)
+
+    # ------------------------------------------------------------------ state snapshots
+    def state_snapshot(self) -> np.ndarray:
+        """The whole simulation state (MuJoCo's mjSTATE_INTEGRATION: time, qpos, qvel, actuators, mocap targets,
+        controls, warm start), enough to see or continue exactly this state later."""
+        snapshot = np.empty(mujoco.mj_stateSize(self.model, SNAPSHOT_SPEC))
+        mujoco.mj_getState(self.model, self.data, snapshot, SNAPSHOT_SPEC)
+        return snapshot
+
+    def restore_snapshot(self, snapshot: np.ndarray) -> None:
+        """Put the simulation back into the state `snapshot` was taken of."""
+        mujoco.mj_setState(self.model, self.data, snapshot, SNAPSHOT_SPEC)
+        mujoco.mj_forward(self.model, self.data)
 
     # ------------------------------------------------------------------ hand
     @property

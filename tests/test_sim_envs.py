@@ -294,3 +294,30 @@ def test_picker_ball_stays_in_its_region_and_the_gripper_holds_it(make_env) -> N
     for _ in range(8):
         info = env.step(np.array([0.0, 0.0, 1.0, 1.0], dtype=np.float32))[4]
     assert info["ball_pos"][2] > 0.15 and info["gripper_opening"] == pytest.approx(2 * env.ball_radius, abs=0.01)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_a_state_snapshot_renders_that_state_later_and_leaves_the_simulation_as_it_was(env_id: str, make_env) -> None:
+    shown, twin = make_env(env_id, render_mode="rgb_array"), make_env(env_id, render_mode="rgb_array")
+    shown.reset(seed=4)
+    twin.reset(seed=4)
+    shown.action_space.seed(4)
+    actions = [shown.action_space.sample() for _ in range(30)]
+    for action in actions[:10]:
+        shown.step(action)
+        twin.step(action)
+    snapshot = shown.unwrapped.state_snapshot()
+    then = shown.render()
+    for action in actions[10:20]:
+        shown.step(action)
+        twin.step(action)
+    assert not np.array_equal(shown.render(), then)
+    now = shown.unwrapped.state_snapshot()
+    shown.unwrapped.restore_snapshot(snapshot)
+    assert np.array_equal(shown.render(), then)
+    shown.unwrapped.restore_snapshot(now)
+    for action in actions[20:]:  # the simulation goes on exactly as if nothing had been rendered in between
+        obs_shown, *_, info_shown = shown.step(action)
+        obs_twin, *_, info_twin = twin.step(action)
+        assert np.array_equal(obs_shown, obs_twin)
+    assert np.array_equal(info_shown["hand_pos"], info_twin["hand_pos"])
