@@ -82,6 +82,7 @@ def _stream(handle: IO[bytes], state: dict[str, Any]) -> None:
         discard = getattr(handle, "discard", None)
         if discard is not None:
             discard()  # S3: aborts the multipart upload; nothing is written
+            handle.closed = True  # type: ignore[misc]  (so that its finaliser does not complete the upload)
         raise
     handle.close()
 

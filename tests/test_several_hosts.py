@@ -187,7 +187,9 @@ def _add_goals(store: Store) -> int:
     return goal_set.id
 
 
-def _learner(name: str, data_dir: Path, database_url: str, s3_env: dict[str, str], stale: float) -> subprocess.Popen:
+def _learner(
+    name: str, data_dir: Path, database_url: str, s3_env: dict[str, str], stale: float, once: bool
+) -> subprocess.Popen:
     env = {key: value for key, value in os.environ.items() if not key.startswith("RAQ_")}
     env.update(s3_env)
     env.update(
@@ -196,7 +198,7 @@ def _learner(name: str, data_dir: Path, database_url: str, s3_env: dict[str, str
     )  # fmt: skip
     data_dir.mkdir(parents=True, exist_ok=True)
     log = (data_dir / "learner.log").open("wb")
-    command = [sys.executable, "-m", "learner.worker", "--once", "--name", name, "--poll", "0.2"]
+    command = [sys.executable, "-m", "learner.worker", "--name", name, "--poll", "0.2", *(["--once"] if once else [])]
     return subprocess.Popen(command, cwd=data_dir, env={**env, "PYTHONPATH": str(ROOT)}, stdout=log, stderr=log)
 
 
@@ -214,17 +216,20 @@ def test_a_learner_on_another_host_resumes_a_killed_learners_run_from_s3(
     fresh_postgres: str, s3_env: dict[str, str], tmp_path: Path
 ) -> None:
     store = Store(fresh_postgres)
-    config = tiny_config(algorithm="vice_raq", total_steps=1200, checkpoint_every=300, eval_every=1000)
+    config = tiny_config(algorithm="vice_raq", total_steps=600, checkpoint_every=300, eval_every=600)
     run_id = store.create_run(
         env_id=config.env_id, algorithm=config.algorithm, config=config.to_dict(), seed=config.seed,
         goal_set_id=_add_goals(store), total_steps=config.total_steps,
     ).id  # fmt: skip
     messages = lambda: [event.message for event in store.events(run_id=run_id, limit=1000)]  # noqa: E731
-    first = _learner("host-a", tmp_path / "host-a", fresh_postgres, s3_env, stale=3.0)
+    first = _learner("host-a", tmp_path / "host-a", fresh_postgres, s3_env, stale=3.0, once=True)
     second = None
     try:
-        _until(lambda: store.get_run(run_id=run_id).worker == "host-a", "host-a's claim", [first])
-        second = _learner("host-b", tmp_path / "host-b", fresh_postgres, s3_env, stale=3.0)  # polls meanwhile
+        # host-b starts once host-a beats from its loop (between a claim and the first beat, setting up can take
+        # longer than this test's 3 s staleness on a loaded machine; the default is 60 s)
+        _until(lambda: store.get_run(run_id=run_id).status == RunStatus.TRAINING, "host-a training", [first])
+        assert store.get_run(run_id=run_id).worker == "host-a"
+        second = _learner("host-b", tmp_path / "host-b", fresh_postgres, s3_env, stale=3.0, once=False)  # polls
         _until(lambda: "checkpoint written at step 300 " in " ".join(messages()), "the checkpoint", [first, second])
         pending = store.pending_queries(run_id=run_id)
         assert pending
@@ -241,7 +246,10 @@ def test_a_learner_on_another_host_resumes_a_killed_learners_run_from_s3(
         assert state is not None and state["step"] == 300  # killed after reading the answers, before checkpointing
         assert len(state["reward_model"]["answered_positives"]) == 0
         assert store.get_run(run_id=run_id).worker == "host-a"  # host-b has not touched it while host-a beat
-        assert second.wait(timeout=120) == 0, (tmp_path / "host-b" / "learner.log").read_text()[-3000:]
+        finished = lambda: store.get_run(run_id=run_id).status in (RunStatus.FINISHED, RunStatus.FAILED)  # noqa: E731
+        _until(finished, "host-b to finish the run", [second], timeout=120)
+        second.send_signal(signal.SIGTERM)  # it was polling for more runs
+        assert second.wait(timeout=60) == 0, (tmp_path / "host-b" / "learner.log").read_text()[-3000:]
     finally:
         for process in (first, second):
             if process is not None and process.poll() is None:
