@@ -60,7 +60,7 @@ def free_port() -> int:
 
 # ---------------------------------------------------------------- the database
 @contextmanager
-def postgres_server(base: Path) -> Iterator[str]:
+def postgres_server() -> Iterator[str]:
     """A throw-away PostgreSQL (Debian's package) on 127.0.0.1; as root it runs as the `postgres` user."""
 
     def binary(name: str) -> str:
@@ -72,6 +72,7 @@ def postgres_server(base: Path) -> Iterator[str]:
     def as_user(command: list[str]) -> list[str]:
         return ["runuser", "-u", "postgres", "--", *command] if os.geteuid() == 0 else command
 
+    base = Path(tempfile.mkdtemp(prefix="raq-load-pg-"))
     data, sockets = base / "pgdata", base / "pgsockets"
     sockets.mkdir(parents=True)
     if os.geteuid() == 0:
@@ -88,6 +89,7 @@ def postgres_server(base: Path) -> Iterator[str]:
         yield f"postgresql+psycopg://raq@127.0.0.1:{port}/raq"
     finally:
         subprocess.run(as_user([pg_ctl, "-D", str(data), "-m", "fast", "-w", "stop"]), capture_output=True)
+        shutil.rmtree(base, ignore_errors=True)
 
 
 def run_config(seed: int) -> TrainConfig:
@@ -319,7 +321,7 @@ def contextmanager_for(backend: str, base_dir: Path, args: argparse.Namespace) -
     elif args.database_url:
         yield args.database_url
     else:
-        with postgres_server(base_dir / "pg") as url:
+        with postgres_server() as url:
             yield url
 
 
