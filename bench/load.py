@@ -261,10 +261,10 @@ def bench(backend: str, args: argparse.Namespace) -> dict:
             for i in range(args.learners)
         ]
         try:
-            deadline = time.monotonic() + 180
+            deadline = time.monotonic() + 300
             while sum(store.get_run(run_id=r).status == RunStatus.TRAINING for r in run_ids) < len(run_ids):
                 if time.monotonic() > deadline:
-                    raise SystemExit("the learners did not all start training within 180 s")
+                    raise SystemExit("the learners did not all start training within 300 s")
                 time.sleep(0.5)
             steps_before = sum(store.get_run(run_id=r).step for r in run_ids)
             asked_before = store.count_queries()
