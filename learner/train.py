@@ -379,6 +379,9 @@ class Trainer:
 
     # ================================================================== checkpoints
     def _checkpoint(self) -> None:
+        if not self.control.holds_run():  # taken over meanwhile: never overwrite the new holder's checkpoint
+            self.control.beat_refused = True
+            return
         started = time.monotonic()
         size = save_checkpoint(self.checkpoint_file, self._state())
         seconds = time.monotonic() - started
