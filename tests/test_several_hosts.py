@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -270,4 +271,34 @@ def test_a_learner_on_another_host_resumes_a_killed_learners_run_from_s3(
     for metric in store.metrics(run_id=run_id):
         assert (metric.name, metric.step) not in seen, f"{metric.name} recorded twice at step {metric.step}"
         seen.add((metric.name, metric.step))
+    store.dispose()
+
+
+def test_labellers_answering_different_queries_at_once_on_postgresql_all_succeed(fresh_postgres: str) -> None:
+    """Many answers at once (as bench/load.py's 50 clients give them) all land, numbered in commit order."""
+    store = Store(fresh_postgres)
+    run_id = store.create_run(env_id="VisualPusher-v0", algorithm="sparse", config={}).id
+    png = b"\x89PNG\r\n\x1a\nquery"
+    ids = [
+        store.post_query(run_id=run_id, env_step=i, model_png=png, display_png=png, score=0.0).id for i in range(120)
+    ]
+    barrier, failures = threading.Barrier(12), []
+
+    def answer(chunk: list[int]) -> None:
+        barrier.wait()
+        for query_id in chunk:
+            try:
+                store.answer_query(query_id=query_id, success=query_id % 2 == 0, labeler="bench")
+            except Exception as error:  # noqa: BLE001
+                failures.append(repr(error))
+
+    threads = [threading.Thread(target=answer, args=(ids[i::12],)) for i in range(12)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert failures == []
+    answers = store.new_answers(run_id=run_id, since_seq=0)
+    assert [a.answer_seq for a in answers] == list(range(1, 121))
+    assert sorted(a.query_id for a in answers) == ids
     store.dispose()
