@@ -13,7 +13,7 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="RAQ_", env_file=".env", extra="ignore")
 
-    data_dir: Path = Field(default=Path("data"), description="Where the SQLite file and (by default) the checkpoints live.")
+    data_dir: Path = Field(default=Path("data"), description="The SQLite file and (by default) checkpoints.")
     database_url: str | None = Field(
         default=None,
         validation_alias=AliasChoices("RAQ_DATABASE_URL", "DATABASE_URL"),
