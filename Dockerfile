@@ -11,7 +11,7 @@ COPY sim sim
 COPY migrations migrations
 COPY templates templates
 COPY static static
-RUN pip install --no-cache-dir --extra-index-url https://download.pytorch.org/whl/cpu '.[postgres]'
+RUN pip install --no-cache-dir --extra-index-url https://download.pytorch.org/whl/cpu '.[postgres,objectstore]'
 VOLUME /data
 EXPOSE 8000
 CMD ["raq", "serve", "--host", "0.0.0.0"]

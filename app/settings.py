@@ -13,7 +13,7 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="RAQ_", env_file=".env", extra="ignore")
 
-    data_dir: Path = Field(default=Path("data"), description="Where the SQLite file and checkpoints live.")
+    data_dir: Path = Field(default=Path("data"), description="The SQLite file and (by default) checkpoints.")
     database_url: str | None = Field(
         default=None,
         validation_alias=AliasChoices("RAQ_DATABASE_URL", "DATABASE_URL"),
@@ -43,6 +43,11 @@ class Settings(BaseSettings):
     server_url: str | None = Field(default=None, description="Base URL the oracle talks to.")
     max_upload_bytes: int = Field(default=20 * 1024 * 1024, description="Largest accepted upload.")
     max_image_pixels: int = Field(default=40_000_000, description="Largest accepted decoded image (w*h).")
+    checkpoint_url: str | None = Field(
+        default=None,
+        description="Where checkpoints live: a directory or an fsspec URL such as s3://bucket/prefix (credentials "
+        "and AWS_ENDPOINT_URL from the standard AWS environment variables); default data_dir/checkpoints.",
+    )
     stale_heartbeat_seconds: float = Field(
         default=60.0, description="A training run whose heartbeat is older than this is reclaimed."
     )
@@ -76,6 +81,11 @@ class Settings(BaseSettings):
     @property
     def checkpoint_dir(self) -> Path:
         return self.data_dir / "checkpoints"
+
+    @property
+    def resolved_checkpoint_url(self) -> str:
+        """RAQ_CHECKPOINT_URL, or the local data_dir/checkpoints."""
+        return self.checkpoint_url or str(self.checkpoint_dir)
 
     @property
     def base_url(self) -> str:

@@ -91,6 +91,11 @@ class RunControl:
         self.event(f"learner {self.worker} interrupted at step {self.counters.step}: run queued again, it resumes here")
         return Outcome.REQUEUED
 
+    def holds_run(self) -> bool:
+        """The run is still this worker's (a learner that stalled past the staleness limit may have lost it)."""
+        run = self.store.get_run(run_id=self.run_id)
+        return run.worker == self.worker and run.status in RunStatus.ACTIVE
+
     def still_held_and_stopping(self) -> bool:
         """The run is still this worker's and a person asked it to stop (else it was taken from this worker)."""
         run = self.store.get_run(run_id=self.run_id)

@@ -26,7 +26,8 @@ from PIL import Image, ImageOps
 
 from app.store import Run, RunStatus, Store
 from learner.algorithms import ALGORITHM_SPECS
-from learner.checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
+from learner.checkpoint import checkpoint_url as checkpoint_location
+from learner.checkpoint import load_checkpoint, save_checkpoint
 from learner.config import TrainConfig
 from learner.envs import (
     check_action_space,
@@ -58,12 +59,13 @@ def config_for_run(run: Run) -> TrainConfig:
 
 
 def train_run(
-    store: Store, run: Run, *, checkpoint_dir: Path, worker: str, interrupt: threading.Event | None = None
+    store: Store, run: Run, *, checkpoint_url: Path | str, worker: str, interrupt: threading.Event | None = None
 ) -> str:
-    """Train a claimed run to its end, a stop, an interrupt (re-queued) or its loss to another worker."""
+    """Train a claimed run to its end, a stop, an interrupt (re-queued) or its loss to another worker.
+    `checkpoint_url`: the directory or fsspec URL (s3://bucket/prefix) under which each run has its checkpoint."""
     trainer = Trainer(
         config_for_run(run), store=store, run_id=run.id, worker=worker, goal_set_id=run.goal_set_id,
-        checkpoint_file=checkpoint_path(checkpoint_dir, run.id), interrupt=interrupt,
+        checkpoint_file=checkpoint_location(checkpoint_url, run.id), interrupt=interrupt,
     )  # fmt: skip
     try:
         return trainer.train()
@@ -76,7 +78,7 @@ class Trainer:
 
     def __init__(
         self, config: TrainConfig, *, store: Store, run_id: int, worker: str, goal_set_id: int | None,
-        checkpoint_file: Path, interrupt: threading.Event | None = None,
+        checkpoint_file: Path | str, interrupt: threading.Event | None = None,
     ) -> None:  # fmt: skip
         self.config, self.store, self.run_id = config, store, run_id
         self.goal_set_id, self.checkpoint_file = goal_set_id, checkpoint_file
@@ -188,8 +190,9 @@ class Trainer:
             dropped = self.store.delete_metrics_after(run_id=self.run_id, step=0)
             control.event(
                 f"the run had reached step {stored_step} but no checkpoint was found at {self.checkpoint_file}: "
-                f"training restarts from step 0 ({dropped} earlier metrics dropped). Checkpoints must be on a "
-                "data dir shared by all learners, or a run that moves to another host starts over.",
+                f"training restarts from step 0 ({dropped} earlier metrics dropped). Checkpoints must be where all "
+                "learners find them (RAQ_CHECKPOINT_URL, e.g. s3://bucket/prefix), or a run that moves to another "
+                "host starts over.",
                 level="warning",
             )
         if cfg.initial_random_steps:
@@ -393,6 +396,9 @@ class Trainer:
 
     # ================================================================== checkpoints
     def _checkpoint(self) -> None:
+        if not self.control.holds_run():  # taken over meanwhile: never overwrite the new holder's checkpoint
+            self.control.beat_refused = True
+            return
         if self.queries is not None:  # (a checkpoint keeps scored candidates, not the observations still waiting)
             self.queries.score_pending()
         started = time.monotonic()

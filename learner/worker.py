@@ -92,7 +92,9 @@ def _train_one(store: Store, run_id: int, settings: Settings, worker: str, inter
     """Train one claimed run; a failure marks it failed with the error's last line. Returns True if it failed."""
     try:
         run = store.get_run(run_id=run_id)
-        outcome = train_run(store, run, checkpoint_dir=settings.checkpoint_dir, worker=worker, interrupt=interrupt)
+        outcome = train_run(
+            store, run, checkpoint_url=settings.resolved_checkpoint_url, worker=worker, interrupt=interrupt
+        )
     except Exception as error:
         reason = _last_line(error)
         logger.exception("run %s failed: %s", run_id, reason)
