@@ -140,9 +140,21 @@ class RunCreate(InputModel):
     algorithm: Text | None = Field(default=None, max_length=50)
     seed: int | None = None
     goal_set_id: int | None = Field(default=None, ge=1, le=INT32_MAX)
+    priority: int = Field(
+        default=0, ge=-100, le=100,
+        description="Learners take the queued run of the highest priority first; the demo has -10. A lower-priority "
+        "run yields to a higher-priority one that waits, at its next checkpoint.",
+    )  # fmt: skip
     config: dict[str, Any] = Field(
         default_factory=dict, description="TrainConfig fields to override; an unknown one is refused (422)."
     )
+
+
+class RunUpdate(InputModel):
+    """Change a run's priority, or archive it (a stopped, failed or finished run) / take it out of the archive."""
+
+    priority: int | None = Field(default=None, ge=-100, le=100)
+    archived: bool | None = None
 
 
 class RolloutOut(BaseModel):
@@ -188,6 +200,11 @@ class RunOut(BaseModel):
     goal_set_id: int | None
     status: str
     status_reason: str
+    waiting_reason: str | None = Field(
+        default=None, description="For a queued run: why it waits ('learner busy with #1; after #4')."
+    )
+    priority: int
+    archived: bool
     stop_requested: bool
     worker: str | None
     step: int
@@ -211,6 +228,7 @@ class RunOut(BaseModel):
         success_rate: float | None,
         steps_per_second: float | None,
         eta_seconds: float | None,
+        waiting_reason: str | None = None,
     ) -> "RunOut":
         return cls(
             id=run.id,
@@ -221,6 +239,9 @@ class RunOut(BaseModel):
             goal_set_id=run.goal_set_id,
             status=run.status,
             status_reason=run.status_reason,
+            waiting_reason=waiting_reason,
+            priority=run.priority,
+            archived=run.archived,
             stop_requested=run.stop_requested,
             worker=run.worker,
             step=run.step,

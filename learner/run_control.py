@@ -61,6 +61,11 @@ class RunControl:
         self.step_known = False  # until the checkpoint is read, heartbeats leave the run's stored step alone
         self.last_beat = 0.0
         self.beat_refused = False
+        self.yield_to: Any = None  # a higher-priority queued run found at the last checkpoint
+
+    def look_for_higher_priority(self) -> None:
+        """At a checkpoint: note a higher-priority run waiting for a learner; the loop then yields to it."""
+        self.yield_to = self.store.higher_priority_waiting(run_id=self.run_id)
 
     @property
     def interrupted(self) -> bool:
@@ -89,6 +94,17 @@ class RunControl:
             run_id=self.run_id, status=RunStatus.QUEUED, reason="learner interrupted", worker=self.worker
         )
         self.event(f"learner {self.worker} interrupted at step {self.counters.step}: run queued again, it resumes here")
+        return Outcome.REQUEUED
+
+    def yielded(self) -> str:
+        """After a checkpoint found a higher-priority run waiting: queue this run again so a learner takes that one
+        first; this run resumes from the checkpoint when a learner is free."""
+        other = self.yield_to
+        self.yield_to = None
+        self.beat()
+        reason = f"yielded to run #{other.id} (priority {other.priority})"
+        self.store.set_run_status(run_id=self.run_id, status=RunStatus.QUEUED, reason=reason, worker=self.worker)
+        self.event(f"{reason} at step {self.counters.step}: queued again, it resumes from this checkpoint")
         return Outcome.REQUEUED
 
     def still_held_and_stopping(self) -> bool:

@@ -146,6 +146,7 @@ class Trainer:
             self._log()
         if step % cfg.checkpoint_every == 0 and step < cfg.total_steps and not self.control.interrupted:
             self._checkpoint()  # (interrupted: the loop checkpoints at once)
+            self.control.look_for_higher_priority()
         self.control.tick()
 
     def _set_up(self) -> bool | None:
@@ -262,6 +263,8 @@ class Trainer:
             return self.control.requeue()
         if self.control.take_refusal():
             return self._stop_or_lost()
+        if self.control.yield_to is not None:  # found at this step's checkpoint
+            return self.control.yielded()
         return None
 
     def _stop_or_lost(self) -> str:

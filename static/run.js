@@ -32,7 +32,7 @@ function renderRun(run) {
     reason.textContent = "Failed: " + run.status_reason;
   } else if (run.status === "queued") {
     reason.className = "muted small";
-    reason.textContent = "Waiting for a learner to pick it up (start one with `raq learn`).";
+    reason.textContent = "Queued: " + (run.waiting_reason || "waiting for a learner (start one with `raq learn`).");
   } else if (run.status === "starting") {
     reason.className = "muted small";
     reason.textContent = "A learner took the run and is setting up (environment, networks, checkpoint).";
@@ -57,6 +57,10 @@ function renderRun(run) {
   const canResume = run.status === "stopped" || run.status === "failed";
   document.getElementById("stop-run").classList.toggle("hidden", !canStop);
   document.getElementById("resume-run").classList.toggle("hidden", !canResume);
+  const archive = document.getElementById("archive-run");
+  archive.textContent = run.archived ? "Unarchive" : "Archive";
+  archive.classList.toggle("hidden", !run.archived && (run.status === "queued" || active));
+  document.getElementById("delete-run").classList.toggle("hidden", active);
 
   const rollout = run.latest_rollout;
   if (rollout && rollout.id !== page.rolloutId) {
@@ -118,6 +122,26 @@ async function runAction(action) {
   }
 }
 
+async function changeRun(change) {
+  try {
+    renderRun(await api("PATCH", `/api/runs/${page.run.id}`, change));
+    toast("archived" in change ? (page.run.archived ? "Archived." : "Back among the runs.") : "Priority changed.");
+    refreshEvents();
+  } catch (error) {
+    toast(error.message, "error", 6000);
+  }
+}
+
+async function deleteRun() {
+  if (!window.confirm(`Delete run #${page.run.id} with its queries, metrics, events, rollouts and checkpoint?`)) return;
+  try {
+    await api("DELETE", `/api/runs/${page.run.id}`);
+    window.location.href = "/";
+  } catch (error) {
+    toast(error.message, "error", 6000);
+  }
+}
+
 document.addEventListener("DOMContentLoaded", () => {
   page.run = JSON.parse(document.getElementById("run-data").textContent);
   page.charts = CHARTS.map(
@@ -133,6 +157,10 @@ document.addEventListener("DOMContentLoaded", () => {
   renderRun(page.run);
   document.getElementById("stop-run").addEventListener("click", () => runAction("stop"));
   document.getElementById("resume-run").addEventListener("click", () => runAction("resume"));
+  document.getElementById("archive-run").addEventListener("click", () => changeRun({ archived: !page.run.archived }));
+  document.getElementById("run-priority").addEventListener("change", (event) =>
+    changeRun({ priority: Number(event.target.value) }));
+  document.getElementById("delete-run").addEventListener("click", deleteRun);
   poll(refreshRun, 2000);
   poll(refreshMetrics, 2000);
   poll(refreshQueries, 4000);

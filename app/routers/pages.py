@@ -22,7 +22,7 @@ from app.deps import (
     secret_hash,
     token_fingerprint,
 )
-from app.routers.runs import run_detail, run_out
+from app.routers.runs import list_run_outs, run_detail, run_out
 from app.schemas import GoalExampleOut, GoalSetOut
 from app.store import INT32_MAX, NotFound, QueryStatus
 from learner.algorithms import ALGORITHM_SPECS
@@ -78,9 +78,10 @@ def _not_found(request: Request, settings: Any, store: Any, message: str):
 
 
 @router.get("/", response_class=HTMLResponse)
-def runs_page(request: Request, settings: SettingsDep, store: StoreDep):
-    runs = [run_out(store, run).model_dump(mode="json") for run in store.list_runs()]
-    return _page(request, "runs.html", settings, store, runs=runs, title="Runs")
+def runs_page(request: Request, settings: SettingsDep, store: StoreDep, archived: bool = False):
+    runs = [run.model_dump(mode="json") for run in list_run_outs(store, archived=archived)]
+    title = "Archived runs" if archived else "Runs"
+    return _page(request, "runs.html", settings, store, runs=runs, title=title, archived=archived)
 
 
 @router.get("/runs/new", response_class=HTMLResponse)

@@ -1,12 +1,14 @@
-"""Runs: create (validated with TrainConfig), list, read, stop, resume, and the latest rollout animation."""
+"""Runs: create (validated with TrainConfig), list, read, change priority / archive, delete, stop, resume, and the
+latest rollout animation."""
 
-from typing import Any
+import shutil
+from typing import Annotated, Any
 
 import pydantic
-from fastapi import APIRouter, HTTPException, Response, status
+from fastapi import APIRouter, HTTPException, Query, Response, status
 
 from app.deps import ReadAuth, RunId, SettingsDep, StoreDep, WriteAuth
-from app.schemas import WRITE_ERRORS, RolloutOut, RunCreate, RunDetail, RunOut, errors
+from app.schemas import WRITE_ERRORS, RolloutOut, RunCreate, RunDetail, RunOut, RunUpdate, errors
 from app.settings import Settings
 from app.store import NotFound, Run, Store
 from learner.algorithms import ALGORITHM_SPECS
@@ -19,13 +21,16 @@ TOP_LEVEL_FIELDS = ("env_id", "algorithm", "seed")
 _config_adapter = pydantic.TypeAdapter(TrainConfig)
 
 
-def run_out(store: Store, run: Run) -> RunOut:
+def run_out(store: Store, run: Run, waiting: dict[int, str] | None = None) -> RunOut:
+    if waiting is None and run.status == "queued":
+        waiting = store.queue_report()
     return RunOut.of(
         run,
         queries=store.query_counts(run_id=run.id),
         success_rate=store.latest_metric(run_id=run.id, name="eval/success_rate"),
         steps_per_second=store.latest_metric(run_id=run.id, name="perf/steps_per_second"),
         eta_seconds=store.latest_metric(run_id=run.id, name="perf/eta_seconds"),
+        waiting_reason=(waiting or {}).get(run.id),
     )
 
 
@@ -120,13 +125,43 @@ def create_run(body: RunCreate, store: StoreDep, settings: SettingsDep, _auth: W
         goal_set_id=body.goal_set_id,
         total_steps=config.total_steps,
         name=body.name.strip(),
+        priority=body.priority,
     )
     return run_detail(store, run)
 
 
 @router.get("", response_model=list[RunOut])
-def list_runs(store: StoreDep, _auth: ReadAuth) -> list[RunOut]:
-    return [run_out(store, run) for run in store.list_runs()]
+def list_runs(
+    store: StoreDep,
+    _auth: ReadAuth,
+    archived: Annotated[
+        bool | None, Query(description="false (default): leave archived runs out; true: only them; omit with all=true")
+    ] = False,
+    all_runs: Annotated[bool, Query(alias="all", description="every run, archived or not")] = False,
+) -> list[RunOut]:
+    return list_run_outs(store, archived=None if all_runs else archived)
+
+
+def list_run_outs(store: Store, *, archived: bool | None = False) -> list[RunOut]:
+    waiting = store.queue_report()
+    return [run_out(store, run, waiting) for run in store.list_runs(archived=archived)]
+
+
+@router.patch("/{run_id}", response_model=RunDetail, responses=errors(404, 409, *WRITE_ERRORS))
+def update_run(run_id: RunId, body: RunUpdate, store: StoreDep, _auth: WriteAuth) -> RunDetail:
+    """Change the priority (any time: a queued run moves in the queue, a running one yields at its next checkpoint
+    when a higher-priority run waits) or archive a run that is not queued or running (409)."""
+    return run_detail(store, store.update_run(run_id=run_id, priority=body.priority, archived=body.archived))
+
+
+@router.delete("/{run_id}", status_code=status.HTTP_204_NO_CONTENT, responses=errors(404, 409, *WRITE_ERRORS))
+def delete_run(run_id: RunId, store: StoreDep, settings: SettingsDep, _auth: WriteAuth) -> Response:
+    """Delete a run with everything it owns: queries (with their images), metrics, events, rollouts and its
+    checkpoint files. A run a learner holds (starting, training) must be stopped first (409)."""
+    store.delete_run(run_id=run_id)
+    # the learner's checkpoint folder of the run (learner/checkpoint.py: <checkpoint_dir>/run-<id>/)
+    shutil.rmtree(settings.checkpoint_dir / f"run-{run_id}", ignore_errors=True)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
 @router.get("/{run_id}", response_model=RunDetail, responses=errors(404))

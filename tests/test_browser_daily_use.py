@@ -1,0 +1,152 @@
+"""Issue 14 in Debian's Chromium against a real server and SQLite: why a queued run waits, priority, archive and
+delete from the run page; /docs with every request outside the server refused; the runs, run and queue pages on a
+390-px phone screen; no 404 (favicon) and no Content-Security-Policy violation anywhere."""
+
+import re
+from collections.abc import Iterator
+
+import pytest
+from playwright.sync_api import Browser, Page, expect
+from test_browser import _gif, _scene, _shot, browser  # noqa: F401 - the module's Chromium fixture
+
+from app.store import RunStatus, Store
+
+pytestmark = pytest.mark.browser
+
+
+def watch(page: Page, server: str) -> list[str]:
+    """Collect page errors, CSP violations and failed (4xx/5xx) responses of the page."""
+    problems: list[str] = []
+    page.on("pageerror", lambda error: problems.append(f"pageerror: {error}"))
+    page.on("console", lambda m: problems.extend([m.text] if "Security Policy" in m.text else []))
+    page.on("response", lambda r: problems.extend([f"{r.status} {r.url}"] if r.status >= 400 else []))
+    return problems
+
+
+@pytest.fixture
+def phone(browser: Browser) -> Iterator[Page]:  # noqa: F811
+    context = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True)
+    opened = context.new_page()
+    opened.set_default_timeout(15_000)
+    yield opened
+    context.close()
+
+
+@pytest.fixture
+def desktop(browser: Browser) -> Iterator[Page]:  # noqa: F811
+    context = browser.new_context(viewport={"width": 1360, "height": 900})
+    opened = context.new_page()
+    opened.set_default_timeout(15_000)
+    yield opened
+    context.close()
+
+
+def _run(store: Store, name: str, priority: int = 0) -> int:
+    return store.create_run(
+        env_id="VisualPusher-v0", algorithm="sparse", config={}, total_steps=25_000, name=name, priority=priority
+    ).id
+
+
+def test_why_a_run_waits_priority_archive_and_delete(desktop: Page, live_server: str, store: Store) -> None:
+    page = desktop
+    problems = watch(page, live_server)
+    demo = _run(store, "demo", priority=-10)
+    store.claim_next_run(worker="learner-a")
+    store.heartbeat(run_id=demo, worker="learner-a", step=3000, status=RunStatus.TRAINING)
+    mine, other = _run(store, "mine"), _run(store, "other")
+
+    page.goto(live_server + "/")
+    row = page.locator(f'tr[data-run-id="{mine}"]')
+    expect(row.locator(".waiting-reason")).to_have_text(f"learner busy with #{demo}")
+    expect(page.locator(f'tr[data-run-id="{other}"] .waiting-reason')).to_have_text(
+        f"learner busy with #{demo}; after #{mine}"
+    )
+    expect(page.locator(f'tr[data-run-id="{demo}"]')).to_contain_text("p-10")
+    _shot(page, "14-01-runs-why-waiting")
+
+    # raise the other run's priority on its page: it moves ahead of mine
+    page.goto(f"{live_server}/runs/{other}")
+    expect(page.locator("#run-reason")).to_contain_text(f"learner busy with #{demo}")
+    expect(page.locator("#archive-run")).to_be_hidden()  # queued: stop it before archiving
+    page.fill("#run-priority", "5")
+    page.locator("#run-priority").dispatch_event("change")
+    expect(page.locator("#run-reason")).to_have_text(f"Queued: learner busy with #{demo}")
+    assert store.get_run(run_id=other).priority == 5
+    page.goto(live_server + "/")
+    expect(page.locator(f'tr[data-run-id="{mine}"] .waiting-reason')).to_have_text(
+        f"learner busy with #{demo}; after #{other}"
+    )
+
+    # stop, archive (gone from the runs, listed under Archived runs), then delete with everything
+    page.goto(f"{live_server}/runs/{other}")
+    page.click("#stop-run")
+    expect(page.locator("#run-status")).to_contain_text("stopped")
+    page.click("#archive-run")
+    expect(page.locator("#archive-run")).to_have_text("Unarchive")
+    page.goto(live_server + "/")
+    expect(page.locator(f'tr[data-run-id="{mine}"]')).to_be_visible()
+    expect(page.locator(f'tr[data-run-id="{other}"]')).to_have_count(0)
+    page.click("#archive-toggle")
+    expect(page.locator(f'tr[data-run-id="{other}"]')).to_be_visible()
+    page.goto(f"{live_server}/runs/{other}")
+    page.once("dialog", lambda dialog: dialog.accept())
+    page.click("#delete-run")
+    page.wait_for_url(live_server + "/")
+    assert other not in [run.id for run in store.list_runs()]
+    assert problems == [], problems
+
+
+def test_api_docs_work_offline(desktop: Page, live_server: str) -> None:
+    page = desktop
+    problems = watch(page, live_server)
+    outside: list[str] = []
+
+    def only_this_server(route) -> None:  # type: ignore[no-untyped-def]
+        if route.request.url.startswith(live_server):
+            route.continue_()
+        else:
+            outside.append(route.request.url)
+            route.abort()
+
+    page.route("**/*", only_this_server)
+    page.goto(live_server + "/docs")
+    expect(page.locator(".swagger-ui .title").first).to_contain_text("vice-raq")
+    expect(page.locator(".opblock-summary-path", has_text="/api/runs/{run_id}/metrics").first).to_be_visible()
+    _shot(page, "14-02-docs-offline")
+    assert outside == [] and problems == [], (outside, problems)
+
+
+def test_phone_sized_runs_run_and_queue_pages(phone: Page, live_server: str, store: Store) -> None:
+    page = phone
+    problems = watch(page, live_server)
+    run_id = _run(store, "a run with a long name to see how it wraps on a phone")
+    store.claim_next_run(worker="learner-a")
+    store.heartbeat(run_id=run_id, worker="learner-a", step=6000, status=RunStatus.TRAINING)
+    for step in range(1000, 7000, 1000):
+        store.record_metrics(run_id=run_id, step=step, values={"eval/success_rate": step / 10000, "eval/return": 1.0})
+    store.record_rollout(run_id=run_id, env_step=6000, data=_gif(), frame_count=8)
+    store.post_query(
+        run_id=run_id, env_step=6000, model_png=_scene(48, (70, 70)), display_png=_scene(256, (70, 70)), score=2.0
+    )
+
+    def fits() -> None:
+        width = page.evaluate("document.documentElement.scrollWidth")
+        assert width <= 390, f"{page.url} is {width} px wide"
+        assert page.locator(".topbar").bounding_box()["height"] <= 56  # the menu on one line
+
+    page.goto(live_server + "/")
+    expect(page.locator(f'tr[data-run-id="{run_id}"]')).to_be_visible()
+    _shot(page, "14-03-phone-runs")
+    fits()
+    page.goto(f"{live_server}/runs/{run_id}")
+    expect(page.locator("#stat-step")).to_contain_text("6k")
+    fits()
+    _shot(page, "14-04-phone-run")
+    page.goto(live_server + "/queue")
+    expect(page.locator("#answer-yes")).to_be_visible()
+    fits()
+    _shot(page, "14-05-phone-queue")
+    page.locator("#answer-yes").tap()
+    expect(page.locator("#queue-empty")).to_be_visible()
+    assert re.search("answered yes", " ".join(e.message for e in store.events(run_id=run_id)))
+    assert problems == [], problems
