@@ -13,7 +13,7 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
-from app.routers import docs, events, goal_sets, health, metrics, pages, queries, runs
+from app.routers import docs, envs, events, goal_sets, health, metrics, pages, queries, runs
 from app.schemas import errors
 from app.security import LoginRateLimit, RequestGuard
 from app.settings import Settings, get_settings
@@ -92,6 +92,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(queries.router)
     app.include_router(metrics.router)
     app.include_router(events.router)
+    app.include_router(envs.router)
     app.include_router(pages.router)
     app.include_router(docs.router)
     app.mount(docs.SWAGGER_UI_PREFIX, StaticFiles(directory=docs.SWAGGER_UI_DIR), name="swagger-ui")

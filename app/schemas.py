@@ -76,10 +76,22 @@ class GoalExampleOut(BaseModel):
     original_url: str
     model_url: str
     display_url: str
+    crop_note: str | None = Field(
+        description="How a photo that is not square was centre-cropped for the model (None when it is square)."
+    )
 
     @classmethod
     def of(cls, example: GoalExample) -> "GoalExampleOut":
         base = f"/api/goal-examples/{example.id}/image"
+        crop_note = None
+        if example.width != example.height:
+            side = min(example.width, example.height)
+            cut = "width" if example.width > example.height else "height"
+            kept = round(100 * side / max(example.width, example.height))
+            crop_note = (
+                f"not square: the model sees the middle {side}×{side} of the {example.width}×{example.height} photo "
+                f"({kept}% of its {cut}; the {'left and right' if cut == 'width' else 'top and bottom'} edges cut off)"
+            )
         return cls(
             id=example.id,
             goal_set_id=example.goal_set_id,
@@ -92,6 +104,7 @@ class GoalExampleOut(BaseModel):
             original_url=f"{base}?kind=original",
             model_url=f"{base}?kind=model",
             display_url=f"{base}?kind=display",
+            crop_note=crop_note,
         )
 
 

@@ -23,12 +23,25 @@ function niceTicks(min, max, count) {
   return ticks;
 }
 
-function tickLabel(value) {
+function tickLabel(value, extra = 0) {
   const abs = Math.abs(value);
-  if (abs >= 1e6) return Number((value / 1e6).toFixed(abs >= 1e7 ? 0 : 1)) + "M";
-  if (abs >= 1e3) return Number((value / 1e3).toFixed(abs >= 1e4 ? 0 : 1)) + "k";
-  if (abs !== 0 && abs < 0.01) return value.toExponential(0);
-  return String(Number(value.toPrecision(3)));
+  if (abs >= 1e6) return Number((value / 1e6).toFixed((abs >= 1e7 ? 0 : 1) + extra)) + "M";
+  if (abs >= 1e3) return Number((value / 1e3).toFixed((abs >= 1e4 ? 0 : 1) + extra)) + "k";
+  if (abs !== 0 && abs < 0.01) return value.toExponential(extra);
+  return String(Number(value.toPrecision(3 + extra)));
+}
+
+/** Labels for the ticks, with as many more digits as it takes for no two to read the same (10.5k was "11k"). */
+function tickLabels(ticks, format = tickLabel) {
+  let labels = ticks.map((t) => format(t, 0));
+  for (let extra = 1; extra <= 4 && new Set(labels).size < labels.length; extra++) {
+    labels = ticks.map((t) => format(t, extra));
+  }
+  return labels;
+}
+
+function percentLabel(value, extra = 0) {
+  return Number((value * 100).toFixed(extra)) + "%";
 }
 
 class LineChart {
@@ -103,13 +116,13 @@ class LineChart {
     const x = (v) => PAD.left + ((v - xMin) / (xMax - xMin)) * plotW;
     const y = (v) => PAD.top + (1 - (v - yMin) / (yMax - yMin || 1)) * plotH;
 
-    for (const t of yTicks) {
+    const yLabels = tickLabels(yTicks, this.options.percent ? percentLabel : tickLabel);
+    yTicks.forEach((t, i) => {
       this.line(PAD.left, y(t), CHART_W - PAD.right, y(t), "grid");
-      this.text(PAD.left - 6, y(t) + 4, this.options.percent ? fmtPercent(t) : tickLabel(t), "end");
-    }
-    for (const t of xTicks) {
-      this.text(x(t), CHART_H - PAD.bottom + 16, tickLabel(t), "middle");
-    }
+      this.text(PAD.left - 6, y(t) + 4, yLabels[i], "end", "tick y-tick");
+    });
+    const xLabels = tickLabels(xTicks);
+    xTicks.forEach((t, i) => this.text(x(t), CHART_H - PAD.bottom + 16, xLabels[i], "middle", "tick x-tick"));
     this.line(PAD.left, PAD.top + plotH, CHART_W - PAD.right, PAD.top + plotH, "axis");
     this.text(CHART_W - PAD.right, CHART_H - 2, "env steps", "end");
 

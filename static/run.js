@@ -8,6 +8,8 @@ const CHARTS = [
     series: [["eval/success_rate", "success"]] },
   { id: "chart-return", title: "Return",
     series: [["eval/return", "evaluation"], ["train/episode_return", "training episodes"]] },
+  { id: "chart-classifier-return", title: "Classifier return Σ fψ(s′) per evaluation episode",
+    series: [["eval/classifier_return", "evaluation"]] },
   { id: "chart-reward-loss", title: "Reward classifier loss", series: [["reward/loss", "loss"]] },
   { id: "chart-reward-acc", title: "Reward classifier accuracy", percent: true, yMin: 0, yMax: 1,
     series: [["reward/acc_goal", "on goal photos"], ["reward/acc_replay", "on replay frames"],
@@ -50,6 +52,12 @@ function renderRun(run) {
   document.getElementById("stat-speed").textContent = active || run.steps_per_second ? fmtNumber(run.steps_per_second, 1) : "–";
   document.getElementById("stat-eta").textContent = active ? fmtDuration(run.eta_seconds) : run.status === "finished" ? "done" : "–";
   const q = run.queries;
+  // the Queries chart ends at the counts the card shows (the learner records them only every log_every steps)
+  const queriesChart = page.charts.find((chart) => chart.element.id === "chart-queries");
+  if (queriesChart && run.step > 0) {
+    queriesChart.add({ "queries/asked": [[run.step, q.asked]], "queries/answered": [[run.step, q.answered]],
+                       "queries/yes": [[run.step, q.yes]] });
+  }
   document.getElementById("stat-queries").textContent = `${q.answered} / ${q.asked}`;
   document.getElementById("stat-queries-sub").innerHTML =
     `answered · ${q.yes} yes` + (q.pending ? ` · <a href="/queue?run=${run.id}"><b>${q.pending} waiting</b></a>` : "");
@@ -87,6 +95,18 @@ async function refreshMetrics() {
   const data = await api("GET", `/api/runs/${page.run.id}/metrics?since_step=${since}`);
   page.lastStep = Math.max(page.lastStep, data.last_step);
   for (const chart of page.charts) chart.add(data.series);
+  showReturnCharts();
+}
+
+/** An env without a reward (its return all zeros) shows the classifier's return instead of a flat line. */
+function showReturnCharts() {
+  const [envReturn, classifierReturn] = ["chart-return", "chart-classifier-return"].map((id) =>
+    page.charts.find((chart) => chart.element.id === id));
+  const values = Object.values(envReturn.data).flat();
+  const flatZero = values.length > 0 && values.every((point) => point[1] === 0);
+  const hasClassifier = Object.values(classifierReturn.data).some((points) => points.length > 0);
+  envReturn.element.classList.toggle("hidden", flatZero && hasClassifier);
+  classifierReturn.element.classList.toggle("hidden", !hasClassifier);
 }
 
 async function refreshQueries() {

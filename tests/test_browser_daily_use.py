@@ -150,3 +150,64 @@ def test_phone_sized_runs_run_and_queue_pages(phone: Page, live_server: str, sto
     expect(page.locator("#queue-empty")).to_be_visible()
     assert re.search("answered yes", " ".join(e.message for e in store.events(run_id=run_id)))
     assert problems == [], problems
+
+
+def test_own_env_preview_crop_note_framing_and_classifier_return(
+    desktop: Page, live_server: str, store: Store, tmp_path
+) -> None:  # type: ignore[no-untyped-def]
+    page = desktop
+    problems = watch(page, live_server)
+    # a goal set with a landscape phone photo: the page says how it was cropped, and shows the run camera's framing
+    page.goto(live_server + "/goal-sets")
+    page.fill("#goal-set-name", "mug on coaster")
+    page.click("#create-goal-set-button")
+    page.wait_for_url(re.compile(r"/goal-sets/\d+$"))
+    photo = tmp_path / "phone.jpg"
+    from PIL import Image
+
+    Image.open(__import__("io").BytesIO(_scene(600, (74, 74)))).resize((800, 600)).save(photo, format="JPEG")
+    page.set_input_files("#goal-files", [str(photo)])
+    expect(page.locator("#upload-status")).to_contain_text("the model sees the middle 600×600 of the 800×600 photo")
+    expect(page.locator(".example .crop-note")).to_contain_text("75% of its width")
+    expect(page.locator("#framing-text")).to_contain_text("reports success")
+    expect(page.locator("#framing-observation")).to_have_js_property("naturalWidth", 48)
+    expect(page.locator("#framing-display")).to_have_js_property("naturalWidth", 256)
+    _shot(page, "14-06-goal-set-crop-and-framing")
+    goal_set_id = int(page.url.rsplit("/", 1)[1])
+
+    # the New run form: free text with suggestions, checked and previewed before the run starts
+    page.goto(f"{live_server}/runs/new?goal_set={goal_set_id}")
+    page.fill("#env_id", "VisualPusher-v1")
+    expect(page.locator('.field[data-field="env_id"] .error')).to_contain_text("did you mean 'VisualPusher-v0'")
+    page.fill("#env_id", "VisualDoor-v0")
+    expect(page.locator("#env-preview-text")).to_contain_text("(3,)")
+    expect(page.locator("#env-preview-observation")).to_have_js_property("naturalWidth", 48)
+    _shot(page, "14-07-new-run-preview")
+    page.click("details summary")
+    page.fill("#extra_config", '{"env_id": "VisualPicker-v0"}')  # typed here, it wins (it was silently replaced)
+    page.click("#start-run")
+    page.wait_for_url(re.compile(r"/runs/\d+$"))
+    run_id = int(page.url.rsplit("/", 1)[1])
+    assert store.get_run(run_id=run_id).env_id == "VisualPicker-v0"
+
+    # an env without a reward: the classifier's return is drawn instead of a flat zero line; ticks never repeat
+    store.claim_next_run(worker="learner-a")
+    store.heartbeat(run_id=run_id, worker="learner-a", step=30_000, status=RunStatus.TRAINING)
+    for step in range(10_000, 30_500, 500):
+        store.record_metrics(
+            run_id=run_id, step=step,
+            values={"eval/return": 0.0, "eval/classifier_return": step / 1000 - 40, "eval/success_rate": 0.5},
+        )  # fmt: skip
+    query = store.post_query(run_id=run_id, env_step=30_000, model_png=_scene(48, (1, 1)), display_png=b"x", score=1.0)
+    store.answer_query(query_id=query.id, success=False, labeler="ann")
+    page.reload()
+    expect(page.locator("#chart-classifier-return")).to_be_visible()
+    expect(page.locator("#chart-classifier-return path.series")).to_have_count(1)
+    expect(page.locator("#chart-return")).to_be_hidden()
+    expect(page.locator("#events")).to_contain_text(f"query {query.id} answered no by ann")
+    for chart in page.locator(".chart:visible").all():
+        labels = chart.locator("text.x-tick").all_text_contents()
+        assert len(labels) == len(set(labels)), labels
+    _shot(page, "14-08-run-classifier-return")
+    expected = [p for p in problems if p.startswith("422 ") and "env_id=VisualPusher-v1" in p]  # the misspelt id
+    assert len(expected) == 1 and [p for p in problems if p not in expected] == [], problems

@@ -27,6 +27,7 @@ from app.schemas import GoalExampleOut, GoalSetOut
 from app.store import INT32_MAX, NotFound, QueryStatus
 from learner.algorithms import ALGORITHM_SPECS
 from learner.config import TrainConfig
+from learner.envs import SIM_ENV_IDS, known_env_ids
 
 TEMPLATES_DIR = Path(__file__).resolve().parent.parent.parent / "templates"
 templates = Jinja2Templates(directory=TEMPLATES_DIR)
@@ -95,6 +96,8 @@ def new_run_page(request: Request, settings: SettingsDep, store: StoreDep, goal_
         store,
         title="New run",
         tasks=available_tasks(),
+        env_ids=[env_id for env_id in known_env_ids() if env_id not in SIM_ENV_IDS],
+        env_modules=list(settings.env_modules),
         algorithms=[(name, spec.label) for name, spec in ALGORITHM_SPECS.items()],
         goal_sets=goal_sets,
         selected_goal_set=goal_set,
@@ -150,6 +153,7 @@ def goal_set_page(goal_set_id: GoalSetId, request: Request, settings: SettingsDe
         goal_set=GoalSetOut.of(goal_set, len(examples)),
         examples=examples,
         max_upload_bytes=settings.max_upload_bytes,
+        tasks=available_tasks(),
     )
 
 
