@@ -38,6 +38,7 @@ from learner.sac import SACAgent
 
 __all__ = ["Outcome", "Trainer", "config_for_run", "train_run"]
 CHECKPOINT_VERSION = 1
+POLICY_FILENAME = "policy.pt"  # beside the checkpoint: the actor and its encoder only (learner/policy.py loads it)
 
 
 def config_for_run(run: Run) -> TrainConfig:
@@ -381,6 +382,8 @@ class Trainer:
     def _checkpoint(self) -> None:
         started = time.monotonic()
         size = save_checkpoint(self.checkpoint_file, self._state())
+        # the policy alone (actor, encoder, config: a few MB), for GET /api/runs/{id}/policy and learner.policy
+        save_checkpoint(self.checkpoint_file.with_name(POLICY_FILENAME), self._policy_state())
         seconds = time.monotonic() - started
         self.control.event(f"checkpoint written at step {self.counters.step} ({size / 1e6:.1f} MB in {seconds:.1f} s)")
         self.control.tick()
@@ -401,6 +404,12 @@ class Trainer:
                 "env": _env_rng_state(self.env),
             },
         }
+
+    def _policy_state(self) -> dict[str, Any]:
+        modules = {name: module.state_dict() for name, module in self.agent.modules().items() if name != "critic"}
+        modules.pop("critic_target", None)
+        return {"version": CHECKPOINT_VERSION, "config": json.dumps(self.config.to_dict()), "step": self.counters.step,
+                "agent": modules}  # fmt: skip
 
     def _restore(self, state: dict[str, Any]) -> None:
         if state.get("version") != CHECKPOINT_VERSION:

@@ -4,6 +4,7 @@ delete from the run page; /docs with every request outside the server refused; t
 
 import re
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from playwright.sync_api import Browser, Page, expect
@@ -211,3 +212,27 @@ def test_own_env_preview_crop_note_framing_and_classifier_return(
     _shot(page, "14-08-run-classifier-return")
     expected = [p for p in problems if p.startswith("422 ") and "env_id=VisualPusher-v1" in p]  # the misspelt id
     assert len(expected) == 1 and [p for p in problems if p not in expected] == [], problems
+
+
+def test_exports_download_from_the_run_page(desktop: Page, live_server: str, store: Store) -> None:
+    page = desktop
+    problems = watch(page, live_server)
+    run_id = _run(store, "export me")
+    store.claim_next_run(worker="learner-a")
+    store.record_metrics(run_id=run_id, step=1000, values={"eval/return": 2.0})
+    query = store.post_query(run_id=run_id, env_step=1000, model_png=_scene(48, (1, 1)), display_png=b"x", score=1.0)
+    store.answer_query(query_id=query.id, success=True)
+    store.record_rollout(run_id=run_id, env_step=1000, data=_gif(), frame_count=8)
+    page.goto(f"{live_server}/runs/{run_id}")
+    expected = {
+        "#export-metrics": f"run-{run_id}-metrics.csv", "#export-tensorboard": f"run-{run_id}-tb.zip",
+        "#export-queries": f"run-{run_id}-queries.zip", "#export-video": f"run-{run_id}-step-1000.avi",
+        "#export-gif": f"run-{run_id}-rollout.gif",
+    }  # fmt: skip
+    for selector, filename in expected.items():
+        with page.expect_download() as download:
+            page.click(selector)
+        assert download.value.suggested_filename == filename
+        assert Path(download.value.path()).stat().st_size > 0
+    _shot(page, "14-09-run-exports")
+    assert problems == [], problems

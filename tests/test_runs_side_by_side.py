@@ -131,5 +131,25 @@ def test_a_lower_priority_run_yields_at_its_next_checkpoint(tmp_path: Path) -> N
         assert yielded, messages
         assert int(yielded[0].split("at step ")[1].split(":")[0]) % low_config.checkpoint_every == 0
         assert any(m.startswith("resumed from checkpoint") for m in messages)
+
+        # the trained policy, downloaded through the API, loads with the documented snippet and acts
+        from fastapi.testclient import TestClient
+
+        from app.main import create_app
+        from learner.envs import make_env
+        from learner.policy import load_policy
+
+        with TestClient(create_app(settings)) as client:
+            response = client.get(f"/api/runs/{high}/policy")
+        assert response.status_code == 200 and "policy.pt" in response.headers["content-disposition"]
+        checkpoint_size = (tmp_path / "checkpoints" / f"run-{high}" / "checkpoint.pt").stat().st_size
+        assert len(response.content) < checkpoint_size / 2  # the policy alone, not the replay buffer
+        (tmp_path / "policy.pt").write_bytes(response.content)
+        policy = load_policy(tmp_path / "policy.pt")
+        env = make_env(high_config.env_id, image_size=16, display_size=32)
+        observation, _info = env.reset(seed=0)
+        action = policy.env_action(observation, env)
+        assert action.shape == env.action_space.shape and env.action_space.contains(action)
+        assert policy.step == 300
     finally:
         store.dispose()
