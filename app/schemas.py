@@ -6,7 +6,7 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
-from app.store import INT32_MAX, GoalExample, GoalSet, Query, Rollout, Run, seconds_since
+from app.store import INT32_MAX, GoalExample, GoalSet, Query, Rollout, Run, RunPhase, RunStatus, seconds_since
 from app.store.models import Event
 
 
@@ -229,7 +229,14 @@ class RunOut(BaseModel):
     heartbeat_age_seconds: float | None
     success_rate: float | None = Field(description="Latest eval/success_rate.")
     steps_per_second: float | None = Field(description="Latest perf/steps_per_second.")
-    eta_seconds: float | None = Field(description="Latest perf/eta_seconds.")
+    eta_seconds: float | None = Field(
+        description="Latest perf/eta_seconds (from the training phase's speed; none during the warm-up), while active."
+    )
+    phase: str | None = Field(default=None, description="What the learner is doing: " + ", ".join(RunPhase.ALL))
+    next_query_step: int | None = Field(
+        default=None, description="The step of the next question (None: the algorithm asks none, or budget spent)."
+    )
+    next_query_seconds: float | None = Field(default=None, description="About when, at the current speed.")
     queries: QueryCountsOut
 
     @classmethod
@@ -242,7 +249,14 @@ class RunOut(BaseModel):
         steps_per_second: float | None,
         eta_seconds: float | None,
         waiting_reason: str | None = None,
+        asks_queries: bool = False,
     ) -> "RunOut":
+        active = run.status in RunStatus.ACTIVE
+        speed = steps_per_second if active else None  # a stopped run has no speed
+        next_step = next_query_step(run, asked=queries.get("asked", 0)) if asks_queries else None
+        next_seconds = None
+        if next_step is not None and speed:
+            next_seconds = max(0.0, (next_step - run.step) / speed)
         return cls(
             id=run.id,
             name=run.name,
@@ -265,10 +279,25 @@ class RunOut(BaseModel):
             heartbeat_at=run.heartbeat_at,
             heartbeat_age_seconds=seconds_since(run.heartbeat_at),
             success_rate=success_rate,
-            steps_per_second=steps_per_second,
-            eta_seconds=eta_seconds,
+            steps_per_second=speed,
+            eta_seconds=eta_seconds if active else None,
+            phase=run.phase if active else None,
+            next_query_step=next_step,
+            next_query_seconds=next_seconds,
             queries=QueryCountsOut(**queries),
         )
+
+
+def next_query_step(run: Run, *, asked: int) -> int | None:
+    """The next multiple of query_every after the run's step, while its query budget lasts and it has not ended."""
+    config = run.config or {}
+    every, budget = int(config.get("query_every") or 0), config.get("query_budget")
+    if every <= 0 or run.status not in (RunStatus.QUEUED, *RunStatus.ACTIVE):
+        return None
+    if budget is not None and asked >= int(budget):
+        return None
+    following = (run.step // every + 1) * every
+    return following if not run.total_steps or following <= run.total_steps else None
 
 
 class RunDetail(RunOut):

@@ -62,6 +62,14 @@ class RunControl:
         self.last_beat = 0.0
         self.beat_refused = False
         self.yield_to: Any = None  # a higher-priority queued run found at the last checkpoint
+        self.phase: str | None = None  # RunPhase, sent with every heartbeat
+
+    def set_phase(self, phase: str) -> None:
+        """Say what the learner is doing now (warm-up, training, evaluating): one heartbeat when it changes."""
+        if phase != self.phase:
+            self.phase = phase
+            if not self.beat():
+                self.beat_refused = True
 
     def look_for_higher_priority(self) -> None:
         """At a checkpoint: note a higher-priority run waiting for a learner; the loop then yields to it."""
@@ -75,7 +83,7 @@ class RunControl:
         """Send a heartbeat (with the step, once known); False when the store refuses it."""
         self.last_beat = time.monotonic()
         step = self.counters.step if self.step_known else None
-        return self.store.heartbeat(run_id=self.run_id, worker=self.worker, step=step, status=status)
+        return self.store.heartbeat(run_id=self.run_id, worker=self.worker, step=step, status=status, phase=self.phase)
 
     def tick(self) -> None:
         """Heartbeat when one is due (also inside long steps); a refusal is acted on at the next env step."""

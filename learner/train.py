@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from PIL import Image, ImageOps
 
-from app.store import Run, RunStatus, Store
+from app.store import Run, RunPhase, RunStatus, Store
 from learner.algorithms import ALGORITHM_SPECS
 from learner.checkpoint import checkpoint_path, load_checkpoint, save_checkpoint
 from learner.config import TrainConfig
@@ -120,7 +120,10 @@ class Trainer:
         self._begin_episode(seed=None if resumed else cfg.seed)
         if resumed:
             self._redo_interrupted_work()
+        self.control.set_phase(self._loop_phase())
         self.log_time, self.log_step, self.log_updates = time.monotonic(), counters.step, counters.total_updates
+        # the ETA is taken from the training phase's speed only (the random warm-up runs several times faster)
+        self.training_since = (self.log_time, counters.step) if counters.step >= cfg.initial_random_steps else None
         while counters.step < cfg.total_steps:
             outcome = self._check_control()
             if outcome is not None:
@@ -139,6 +142,8 @@ class Trainer:
             self.queries.ask()
         if step == cfg.initial_random_steps:
             self.control.event(f"warm-up done at step {step}: policy acting, SAC updates started")
+            self.control.set_phase(RunPhase.TRAINING)
+            self.training_since = (time.monotonic(), step)
         if step >= cfg.initial_random_steps:
             self._sac_updates()
         if step % cfg.eval_every == 0:
@@ -350,10 +355,17 @@ class Trainer:
         return True
 
     # ================================================================== evaluation and metrics
+    def _loop_phase(self) -> str:
+        return RunPhase.WARM_UP if self.counters.step < self.config.initial_random_steps else RunPhase.TRAINING
+
     def _evaluate(self) -> None:
         step = self.counters.step
-        if self.evaluator.evaluate(step):
-            self.counters.evaluated_step = step
+        self.control.set_phase(RunPhase.EVALUATING)
+        try:
+            if self.evaluator.evaluate(step):
+                self.counters.evaluated_step = step
+        finally:
+            self.control.set_phase(self._loop_phase())
 
     def _log(self) -> None:
         now, step, counters = time.monotonic(), self.counters.step, self.counters
@@ -370,7 +382,12 @@ class Trainer:
         values["perf/steps_per_second"] = steps_per_second
         values["perf/updates_per_second"] = (counters.total_updates - self.log_updates) / elapsed
         remaining = self.config.total_steps - step
-        values["perf/eta_seconds"] = remaining / steps_per_second if steps_per_second > 0 else 0.0
+        training_since = getattr(self, "training_since", None)
+        if training_since is not None and step - training_since[1] >= self.config.log_every:
+            # the training phase's own speed so far (evaluations, classifier epochs and queries included)
+            training_speed = (step - training_since[1]) / max(now - training_since[0], 1e-9)
+            values["perf/training_steps_per_second"] = training_speed
+            values["perf/eta_seconds"] = remaining / training_speed
         self.store.record_metrics(run_id=self.run_id, step=step, values=values)
         self.update_sums.clear()
         self.update_count = 0

@@ -49,8 +49,21 @@ function renderRun(run) {
   document.getElementById("stat-heartbeat").textContent = run.heartbeat_at ? fmtAge(run.heartbeat_age_seconds) : "–";
   document.getElementById("stat-worker").textContent = run.worker ? run.worker : "no learner yet";
   const active = run.status === "training" || run.status === "starting";
-  document.getElementById("stat-speed").textContent = active || run.steps_per_second ? fmtNumber(run.steps_per_second, 1) : "–";
-  document.getElementById("stat-eta").textContent = active ? fmtDuration(run.eta_seconds) : run.status === "finished" ? "done" : "–";
+  document.getElementById("stat-speed").textContent = active ? fmtNumber(run.steps_per_second, 1) : "–";
+  const warmUp = active && run.phase === "warm-up";
+  document.getElementById("stat-eta").textContent = run.status === "finished" ? "done"
+    : active && run.eta_seconds !== null ? fmtDuration(run.eta_seconds) : "–";
+  document.getElementById("stat-eta-sub").textContent = warmUp ? "known once training starts (after the warm-up)"
+    : "to total steps, at the training speed";
+  const phase = document.getElementById("run-phase");
+  const phases = [];
+  if (active && run.phase) phases.push(run.phase);
+  if (run.queries.pending) phases.push(`waiting for answers (${run.queries.pending})`);
+  phase.textContent = phases.join(" · ");
+  const nextQuery = document.getElementById("stat-next-query");
+  nextQuery.textContent = run.next_query_step === null ? ""
+    : `next question at step ${run.next_query_step.toLocaleString()}`
+      + (run.next_query_seconds !== null ? ` (about ${fmtDuration(run.next_query_seconds)})` : "");
   const q = run.queries;
   // the Queries chart ends at the counts the card shows (the learner records them only every log_every steps)
   const queriesChart = page.charts.find((chart) => chart.element.id === "chart-queries");

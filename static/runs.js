@@ -11,8 +11,9 @@ function runRow(run) {
   const priority = run.priority ? ` <span class="small muted" title="priority">p${run.priority}</span>` : "";
   const pending = run.queries.pending
     ? ` · <a href="/queue?run=${run.id}"><b>${run.queries.pending} waiting</b></a>` : "";
-  const eta = run.eta_seconds !== null && (run.status === "training" || run.status === "starting")
-    ? ` · ETA ${fmtDuration(run.eta_seconds)}` : "";
+  const active = run.status === "training" || run.status === "starting";
+  const eta = run.eta_seconds !== null && active ? ` · ETA ${fmtDuration(run.eta_seconds)}` : "";
+  if (active && run.phase) reason += `<div class="small muted run-phase">${escapeHtml(run.phase)}</div>`;
   return `<tr data-run-id="${run.id}">
     <td><a href="/runs/${run.id}"><b>#${run.id}</b></a> ${escapeHtml(run.name)}${priority}</td>
     <td class="wide-only">${escapeHtml(run.env_id)}</td>

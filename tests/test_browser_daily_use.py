@@ -236,3 +236,57 @@ def test_exports_download_from_the_run_page(desktop: Page, live_server: str, sto
         assert Path(download.value.path()).stat().st_size > 0
     _shot(page, "14-09-run-exports")
     assert problems == [], problems
+
+
+def test_honest_progress_and_a_notification_when_a_question_waits(
+    browser: Browser,  # noqa: F811
+    live_server: str,
+    store: Store,
+) -> None:
+    context = browser.new_context(viewport={"width": 1360, "height": 900})
+    context.grant_permissions(["notifications"], origin=live_server)
+    # record what the page shows through the real Notification API
+    context.add_init_script(
+        "const Real = window.Notification; window.shown = [];"
+        "window.Notification = class extends Real { constructor(title, options) { super(title, options);"
+        " window.shown.push(title + ' | ' + (options && options.body)); } };"
+    )
+    page = context.new_page()
+    page.set_default_timeout(15_000)
+    problems = watch(page, live_server)
+    run_id = store.create_run(
+        env_id="VisualPusher-v0", algorithm="vice_raq", config={"query_every": 1000, "query_budget": 5},
+        total_steps=20_000, goal_set_id=None,
+    ).id  # fmt: skip
+    store.claim_next_run(worker="learner-a")
+    store.heartbeat(run_id=run_id, worker="learner-a", step=500, status=RunStatus.TRAINING, phase="warm-up")
+    store.record_metrics(run_id=run_id, step=500, values={"perf/steps_per_second": 100.0})
+    page.goto(f"{live_server}/runs/{run_id}")
+    expect(page.locator("#run-phase")).to_have_text("warm-up")
+    expect(page.locator("#stat-eta")).to_have_text("–")
+    expect(page.locator("#stat-eta-sub")).to_contain_text("once training starts")
+    expect(page.locator("#stat-next-query")).to_have_text("next question at step 1,000 (about 5 s)")
+    store.heartbeat(run_id=run_id, worker="learner-a", step=2500, phase="evaluating")
+    store.record_metrics(run_id=run_id, step=2500, values={"perf/steps_per_second": 10.0, "perf/eta_seconds": 1750.0})
+    expect(page.locator("#run-phase")).to_have_text("evaluating")
+    expect(page.locator("#stat-eta")).to_have_text("29 min 10 s")
+    expect(page.locator("#stat-next-query")).to_have_text("next question at step 3,000 (about 50 s)")
+
+    page.goto(f"{live_server}/queue")
+    expect(page.locator("#notify-toggle")).to_have_text("Notifications on")  # permission granted to this origin
+    expect(page.locator("#queue-empty")).to_be_visible()
+    image = _scene(48, (1, 1))
+    store.post_query(run_id=run_id, env_step=2500, model_png=image, display_png=image, score=1.0)
+    expect(page.locator("#answer-yes")).to_be_visible()
+    page.wait_for_function("window.shown.length === 1")
+    assert page.evaluate("window.shown") == ["vice-raq: a question is waiting | 1 question waiting for your answer"]
+
+    store.request_stop(run_id=run_id)
+    store.set_run_status(run_id=run_id, status=RunStatus.STOPPED, worker="learner-a")
+    page.goto(f"{live_server}/runs/{run_id}")
+    expect(page.locator("#run-status")).to_contain_text("stopped")
+    expect(page.locator("#stat-speed")).to_have_text("–")  # a stopped run shows no speed
+    expect(page.locator("#run-phase")).to_have_text("waiting for answers (1)")
+    _shot(page, "14-10-run-stopped-progress")
+    assert problems == [], problems
+    context.close()

@@ -131,6 +131,10 @@ def test_a_lower_priority_run_yields_at_its_next_checkpoint(tmp_path: Path) -> N
         assert yielded, messages
         assert int(yielded[0].split("at step ")[1].split(":")[0]) % low_config.checkpoint_every == 0
         assert any(m.startswith("resumed from checkpoint") for m in messages)
+        # honest progress: an ETA only from the training phase's speed (none during the random warm-up)
+        etas = store.metrics(run_id=high, names=["perf/eta_seconds"])
+        assert etas and min(m.step for m in etas) >= high_config.initial_random_steps + high_config.log_every
+        assert low_run.phase is None and high_run.phase is None  # ended: no phase
 
         # the trained policy, downloaded through the API, loads with the documented snippet and acts
         from fastapi.testclient import TestClient

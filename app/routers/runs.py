@@ -31,6 +31,7 @@ def run_out(store: Store, run: Run, waiting: dict[int, str] | None = None) -> Ru
         steps_per_second=store.latest_metric(run_id=run.id, name="perf/steps_per_second"),
         eta_seconds=store.latest_metric(run_id=run.id, name="perf/eta_seconds"),
         waiting_reason=(waiting or {}).get(run.id),
+        asks_queries=bool(getattr(ALGORITHM_SPECS.get(run.algorithm), "queries", False)),
     )
 
 

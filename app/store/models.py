@@ -67,6 +67,16 @@ class RunStatus:
     ALL = (QUEUED, STARTING, TRAINING, STOPPED, FINISHED, FAILED)
 
 
+class RunPhase:
+    """What the learner of an active run is doing now (sent with its heartbeats; shown on the pages)."""
+
+    SETTING_UP = "setting up"
+    WARM_UP = "warm-up"
+    TRAINING = "training"
+    EVALUATING = "evaluating"
+    ALL = (SETTING_UP, WARM_UP, TRAINING, EVALUATING)
+
+
 class QueryStatus:
     PENDING = "pending"
     ANSWERED = "answered"
@@ -119,6 +129,8 @@ class Run(Base):
     queued_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
     # Archived runs are hidden from the runs page (unless asked for) and never claimed.
     archived: Mapped[bool] = mapped_column(Boolean, default=False, server_default=sa_false())
+    # RunPhase of an active run, as its learner last said (None before a learner took it)
+    phase: Mapped[str | None] = mapped_column(String(30))
     worker: Mapped[str | None] = mapped_column(String(200))
     heartbeat_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
     step: Mapped[int] = mapped_column(BigInteger, default=0)

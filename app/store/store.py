@@ -25,6 +25,7 @@ from app.store.models import (
     QueryStatus,
     Rollout,
     Run,
+    RunPhase,
     RunStatus,
     utcnow,
 )
@@ -347,6 +348,7 @@ class Store(Database):
                     .values(
                         status=RunStatus.STARTING,
                         status_reason="",
+                        phase=RunPhase.SETTING_UP,
                         worker=worker,
                         heartbeat_at=now,
                         started_at=func.coalesce(Run.started_at, now),
@@ -359,10 +361,14 @@ class Store(Database):
                     return session.get(Run, run_id)
             return None
 
-    def heartbeat(self, *, run_id: int, worker: str, step: int | None = None, status: str | None = None) -> bool:
-        """Record that `worker` is alive on the run. Returns False when it should stop (stop asked,
-        or the run was taken from it)."""
+    def heartbeat(
+        self, *, run_id: int, worker: str, step: int | None = None, status: str | None = None, phase: str | None = None
+    ) -> bool:
+        """Record that `worker` is alive on the run (and, with `phase`, what it is doing). Returns False when it
+        should stop (stop asked, or the run was taken from it)."""
         values: dict[str, Any] = {"heartbeat_at": utcnow()}
+        if phase is not None:
+            values["phase"] = phase
         if step is not None:
             values["step"] = step
         if status is not None:
@@ -384,6 +390,8 @@ class Store(Database):
         values: dict[str, Any] = {"status": status, "status_reason": reason[:2000]}
         if status == RunStatus.QUEUED:
             values["queued_at"] = utcnow()
+        if status not in RunStatus.ACTIVE:
+            values["phase"] = None
         if status in (RunStatus.FINISHED, RunStatus.FAILED, RunStatus.STOPPED):
             values["finished_at"] = utcnow()
             values["stop_requested"] = False

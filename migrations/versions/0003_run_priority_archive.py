@@ -1,4 +1,4 @@
-"""runs: priority, queued_at, archived (issue 14: runs side by side, archive)
+"""runs: priority, queued_at, archived, phase (issue 14: runs side by side, archive, honest progress)
 
 Revision ID: 0003_run_priority
 Revises: 0002
@@ -21,10 +21,12 @@ def upgrade() -> None:
         batch.add_column(sa.Column("priority", sa.Integer(), nullable=False, server_default="0"))
         batch.add_column(sa.Column("queued_at", sa.DateTime(timezone=True), nullable=True))
         batch.add_column(sa.Column("archived", sa.Boolean(), nullable=False, server_default=sa.false()))
+        batch.add_column(sa.Column("phase", sa.String(length=30), nullable=True))
 
 
 def downgrade() -> None:
     with op.batch_alter_table("runs") as batch:
+        batch.drop_column("phase")
         batch.drop_column("archived")
         batch.drop_column("queued_at")
         batch.drop_column("priority")
