@@ -13,7 +13,7 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
-from app.routers import docs, envs, events, exports, goal_sets, health, metrics, pages, queries, runs
+from app.routers import compare, docs, envs, events, exports, goal_sets, health, metrics, pages, queries, runs
 from app.schemas import errors
 from app.security import LoginRateLimit, RequestGuard
 from app.settings import Settings, get_settings
@@ -89,6 +89,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(health.router)
     app.include_router(runs.router)
     app.include_router(exports.router)
+    app.include_router(compare.router)
     app.include_router(goal_sets.router)
     app.include_router(queries.router)
     app.include_router(metrics.router)

@@ -395,3 +395,28 @@ class EventOut(BaseModel):
         return cls(
             id=event.id, run_id=event.run_id, level=event.level, message=event.message, created_at=event.created_at
         )
+
+
+# ---------------------------------------------------------------- sweeps and comparison
+class SweepCreate(InputModel):
+    """Methods × seeds in one action: one run per (algorithm, seed), all with the same env, goal set and config."""
+
+    name: Text = Field(default="", max_length=150)
+    env_id: Text = Field(max_length=200)
+    algorithms: list[Text] = Field(min_length=1, max_length=5, description="Keys of the algorithm table.")
+    seeds: list[Annotated[int, Field(ge=0, le=INT32_MAX)]] = Field(min_length=1, max_length=10)
+    goal_set_id: int | None = Field(default=None, ge=1, le=INT32_MAX)
+    priority: int = Field(default=0, ge=-100, le=100)
+    config: dict[str, Any] = Field(default_factory=dict)
+
+
+class CompareGroupOut(BaseModel):
+    label: str = Field(description="The group: env id and algorithm.")
+    run_ids: list[int]
+    # [step, mean, min, max, n] at each step every run of the group recorded
+    points: list[Annotated[list[float], Field(min_length=5, max_length=5)]]
+
+
+class CompareOut(BaseModel):
+    metric: str
+    groups: list[CompareGroupOut]

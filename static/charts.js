@@ -73,9 +73,10 @@ class LineChart {
       const points = series[spec.name];
       if (!points || !points.length) continue;
       const existing = this.data[spec.name] || [];
-      const byStep = new Map(existing.map((p) => [p[0], p[1]]));
-      for (const [step, value] of points) byStep.set(step, value);
-      this.data[spec.name] = [...byStep.entries()].sort((a, b) => a[0] - b[0]);
+      // a point is [step, value] or, for a series with a spread band, [step, mean, low, high, ...]
+      const byStep = new Map(existing.map((p) => [p[0], p]));
+      for (const point of points) byStep.set(point[0], point);
+      this.data[spec.name] = [...byStep.values()].sort((a, b) => a[0] - b[0]);
       changed = true;
     }
     if (changed) this.render();
@@ -103,8 +104,8 @@ class LineChart {
       xMin = Math.max(0, xMin - 1);
       xMax = xMax + 1;
     }
-    let yMin = Math.min(...all.map((p) => p[1]));
-    let yMax = Math.max(...all.map((p) => p[1]));
+    let yMin = Math.min(...all.map((p) => Math.min(p[1], p.length > 3 ? p[2] : p[1])));
+    let yMax = Math.max(...all.map((p) => Math.max(p[1], p.length > 3 ? p[3] : p[1])));
     if (this.options.yMin !== undefined) yMin = Math.min(yMin, this.options.yMin);
     if (this.options.yMax !== undefined) yMax = Math.max(yMax, this.options.yMax);
     const yTicks = niceTicks(yMin, yMax, 4);
@@ -126,6 +127,18 @@ class LineChart {
     this.line(PAD.left, PAD.top + plotH, CHART_W - PAD.right, PAD.top + plotH, "axis");
     this.text(CHART_W - PAD.right, CHART_H - 2, "env steps", "end");
 
+    for (const s of series) {
+      if (!s.band || s.points.length < 2) continue;
+      const upper = s.points.map((p, i) => (i ? "L" : "M") + x(p[0]).toFixed(1) + " " + y(p[3]).toFixed(1));
+      const lower = [...s.points].reverse().map((p) => "L" + x(p[0]).toFixed(1) + " " + y(p[2]).toFixed(1));
+      const band = document.createElementNS(SVG_NS, "path");
+      band.setAttribute("d", upper.join(" ") + " " + lower.join(" ") + " Z");
+      band.setAttribute("class", "band");
+      band.setAttribute("fill", s.color);
+      band.setAttribute("fill-opacity", "0.15");
+      band.setAttribute("data-series", s.name);
+      svg.appendChild(band);
+    }
     for (const s of series) {
       if (!s.points.length) continue;
       const d = s.points.map((p, i) => (i ? "L" : "M") + x(p[0]).toFixed(1) + " " + y(p[1]).toFixed(1)).join(" ");

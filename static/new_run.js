@@ -32,6 +32,24 @@ function showErrors(form, detail, fallback) {
   box.classList.remove("hidden");
 }
 
+/** "0,1,2" or "0-2" (or empty: []) -> seeds; null when it cannot be read. */
+function parseSeeds(text) {
+  const seeds = [];
+  for (const part of text.split(",").map((p) => p.trim()).filter(Boolean)) {
+    const range = part.match(/^(\d+)\s*-\s*(\d+)$/);
+    if (range) {
+      const [from, to] = [Number(range[1]), Number(range[2])];
+      if (to < from || to - from > 50) return null;
+      for (let seed = from; seed <= to; seed++) seeds.push(seed);
+    } else if (/^\d+$/.test(part)) {
+      seeds.push(Number(part));
+    } else {
+      return null;
+    }
+  }
+  return seeds;
+}
+
 let previewTimer = null;
 let previewFor = null;
 
@@ -113,8 +131,23 @@ document.addEventListener("DOMContentLoaded", () => {
       }
     }
     const button = document.getElementById("start-run");
+    const sweepMethods = [...form.querySelectorAll('input[name="sweep_algorithms"]:checked')].map((box) => box.value);
+    const sweepSeeds = parseSeeds(form.elements.sweep_seeds.value);
+    if (sweepSeeds === null) {
+      showErrors(form, [{ loc: ["body", "seeds"], msg: "seeds: write 0,1,2 or 0-2" }]);
+      return;
+    }
     button.disabled = true;
     try {
+      if (sweepMethods.length || sweepSeeds.length) {
+        const runs = await api("POST", "/api/runs/sweep", {
+          name: body.name, env_id: body.env_id, algorithms: sweepMethods.length ? sweepMethods : [body.algorithm],
+          seeds: sweepSeeds.length ? sweepSeeds : [body.seed], goal_set_id: body.goal_set_id,
+          priority: body.priority, config: body.config,
+        });
+        window.location.href = "/compare?runs=" + runs.map((run) => run.id).join(",");
+        return;
+      }
       const run = await api("POST", "/api/runs", body);
       window.location.href = `/runs/${run.id}`;
     } catch (error) {

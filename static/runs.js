@@ -14,7 +14,9 @@ function runRow(run) {
   const active = run.status === "training" || run.status === "starting";
   const eta = run.eta_seconds !== null && active ? ` · ETA ${fmtDuration(run.eta_seconds)}` : "";
   if (active && run.phase) reason += `<div class="small muted run-phase">${escapeHtml(run.phase)}</div>`;
+  const checked = selected.has(run.id) ? " checked" : "";
   return `<tr data-run-id="${run.id}">
+    <td class="check"><input type="checkbox" class="compare-check" value="${run.id}" aria-label="compare run ${run.id}"${checked}></td>
     <td><a href="/runs/${run.id}"><b>#${run.id}</b></a> ${escapeHtml(run.name)}${priority}</td>
     <td class="wide-only">${escapeHtml(run.env_id)}</td>
     <td class="wide-only"><code>${escapeHtml(run.algorithm)}</code></td>
@@ -29,10 +31,12 @@ function runRow(run) {
   </tr>`;
 }
 
+const selected = new Set();
+
 function renderRuns(runs) {
   const body = document.getElementById("runs-body");
   if (!runs.length) {
-    body.innerHTML = `<tr><td colspan="8" class="empty">No runs yet. Create a <a href="/goal-sets">goal set</a>
+    body.innerHTML = `<tr><td colspan="9" class="empty">No runs yet. Create a <a href="/goal-sets">goal set</a>
       with a few photos of success, then <a href="/runs/new">start a run</a>.</td></tr>`;
     return;
   }
@@ -40,7 +44,21 @@ function renderRuns(runs) {
   setPendingBadge(runs.reduce((total, run) => total + run.queries.pending, 0));
 }
 
+function updateCompareButton() {
+  document.getElementById("compare-selected").disabled = selected.size < 1;
+}
+
 document.addEventListener("DOMContentLoaded", () => {
+  document.getElementById("runs-body").addEventListener("change", (event) => {
+    if (!event.target.classList.contains("compare-check")) return;
+    const id = Number(event.target.value);
+    if (event.target.checked) selected.add(id);
+    else selected.delete(id);
+    updateCompareButton();
+  });
+  document.getElementById("compare-selected").addEventListener("click", () => {
+    window.location.href = "/compare?runs=" + [...selected].sort((a, b) => a - b).join(",");
+  });
   renderRuns(JSON.parse(document.getElementById("runs-data").textContent));
   setTimeout(() => poll(async () => renderRuns(await api("GET", `/api/runs?archived=${document.getElementById("runs-body").dataset.archived}`)), 3000), 3000);
 });

@@ -122,3 +122,33 @@ def test_the_server_still_imports_no_torch() -> None:
     code = "import sys, app.main; print('torch' in sys.modules)"
     result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "False"
+
+
+def test_a_sweep_starts_methods_times_seeds_and_compare_groups_them(
+    client: TestClient, store: Store, goal_set_with_photo: dict
+) -> None:
+    body = {"env_id": "VisualPusher-v0", "algorithms": ["vice_raq", "vice"], "seeds": [0, 1, 2],
+            "goal_set_id": goal_set_with_photo["id"], "name": "pusher", "config": {"total_steps": 5000}}  # fmt: skip
+    runs = client.post("/api/runs/sweep", json=body).json()
+    assert sorted((run["algorithm"], run["seed"]) for run in runs) == [
+        (algorithm, seed) for algorithm in ("vice", "vice_raq") for seed in (0, 1, 2)
+    ]
+    assert runs[0]["name"] == "pusher · vice_raq · seed 0" and all(run["total_steps"] == 5000 for run in runs)
+    # nothing is created when one combination is refused
+    bad = client.post("/api/runs/sweep", json={**body, "algorithms": ["vice_raq", "vice_rag"]})
+    assert bad.status_code == 422 and len(client.get("/api/runs").json()) == 6
+    for index, run in enumerate(runs):
+        for step in (1000, 2000):
+            value = (0.2 if run["algorithm"] == "vice" else 0.5) + 0.1 * run["seed"] + step / 10_000
+            store.record_metrics(run_id=run["id"], step=step, values={"eval/success_rate": value})
+        if index == 0:
+            store.record_metrics(run_id=run["id"], step=3000, values={"eval/success_rate": 1.0})  # only one seed
+    ids = ",".join(str(run["id"]) for run in runs)
+    groups = {group["label"]: group for group in client.get(f"/api/compare?runs={ids}").json()["groups"]}
+    raq = groups["VisualPusher-v0 · vice_raq"]
+    assert [point[0] for point in raq["points"]] == [1000, 2000]  # steps every seed reached
+    step, mean, low, high, n = raq["points"][1]
+    assert (step, round(mean, 6), round(low, 6), round(high, 6), n) == (2000, 0.8, 0.7, 0.9, 3)
+    assert round(groups["VisualPusher-v0 · vice"]["points"][0][1], 6) == 0.4
+    assert client.get(f"/api/compare?runs={ids}&metric=nope").status_code == 422
+    assert client.get("/api/compare?runs=99999").status_code == 404

@@ -184,7 +184,7 @@ def test_own_env_preview_crop_note_framing_and_classifier_return(
     expect(page.locator("#env-preview-text")).to_contain_text("(3,)")
     expect(page.locator("#env-preview-observation")).to_have_js_property("naturalWidth", 48)
     _shot(page, "14-07-new-run-preview")
-    page.click("details summary")
+    page.click("details:not(#sweep) summary")
     page.fill("#extra_config", '{"env_id": "VisualPicker-v0"}')  # typed here, it wins (it was silently replaced)
     page.click("#start-run")
     page.wait_for_url(re.compile(r"/runs/\d+$"))
@@ -290,3 +290,45 @@ def test_honest_progress_and_a_notification_when_a_question_waits(
     _shot(page, "14-10-run-stopped-progress")
     assert problems == [], problems
     context.close()
+
+
+def test_a_sweep_from_the_form_and_the_compare_page(desktop: Page, live_server: str, store: Store) -> None:
+    page = desktop
+    problems = watch(page, live_server)
+    goal_set = store.create_goal_set(name="sweep goals")
+    store.add_goal_example(
+        goal_set_id=goal_set.id, filename="g.png", original=_scene(48, (74, 74)), original_media_type="image/png",
+        width=48, height=48, model_png=_scene(48, (74, 74)), display_png=_scene(96, (74, 74)),
+    )  # fmt: skip
+    page.goto(f"{live_server}/runs/new?goal_set={goal_set.id}")
+    page.fill("#total_steps", "5000")
+    page.click("#sweep summary")
+    page.check('input[name="sweep_algorithms"][value="vice_raq"]')
+    page.check('input[name="sweep_algorithms"][value="vice"]')
+    page.fill("#sweep_seeds", "0-2")
+    page.click("#start-run")
+    page.wait_for_url(re.compile(r"/compare\?runs="))
+    runs = store.list_runs()
+    expected = [(algorithm, seed) for algorithm in ("vice", "vice_raq") for seed in (0, 1, 2)]
+    assert sorted((run.algorithm, run.seed) for run in runs) == expected
+    for run in runs:
+        for step in range(1000, 6000, 1000):
+            value = min(1.0, step / 5000 * (0.6 if run.algorithm == "vice" else 1.0) + 0.05 * run.seed)
+            store.record_metrics(run_id=run.id, step=step, values={"eval/success_rate": value, "eval/return": -step})
+    page.reload()
+    expect(page.locator("#compare-chart path.band")).to_have_count(2)
+    expect(page.locator("#compare-chart path.series")).to_have_count(2)
+    expect(page.locator("#compare-groups-body tr")).to_have_count(2)
+    expect(page.locator('#compare-groups-body tr[data-group="VisualPusher-v0 · vice_raq"] td').nth(2)).to_have_text("1")
+    _shot(page, "14-11-compare")
+    page.select_option("#compare-metric", "eval/return")
+    expect(page.locator("#compare-chart .chart-title")).to_have_text("Evaluation return")
+
+    # the runs page: tick two runs, Compare selected
+    page.goto(live_server + "/")
+    page.check(f'input.compare-check[value="{runs[0].id}"]')
+    page.check(f'input.compare-check[value="{runs[-1].id}"]')
+    page.click("#compare-selected")
+    page.wait_for_url(re.compile(r"/compare\?runs=\d+,\d+$"))
+    expect(page.locator("#compare-groups-body tr")).to_have_count(2)
+    assert problems == [], problems

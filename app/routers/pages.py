@@ -22,6 +22,7 @@ from app.deps import (
     secret_hash,
     token_fingerprint,
 )
+from app.routers.compare import COMPARE_METRICS
 from app.routers.runs import list_run_outs, run_detail, run_out
 from app.schemas import GoalExampleOut, GoalSetOut
 from app.store import INT32_MAX, NotFound, QueryStatus
@@ -155,6 +156,29 @@ def goal_set_page(goal_set_id: GoalSetId, request: Request, settings: SettingsDe
         max_upload_bytes=settings.max_upload_bytes,
         tasks=available_tasks(),
     )
+
+
+@router.get("/compare", response_class=HTMLResponse)
+def compare_page(
+    request: Request,
+    settings: SettingsDep,
+    store: StoreDep,
+    runs: Annotated[str, Query(max_length=600)] = "",
+    metric: Annotated[str, Query(max_length=100)] = "eval/success_rate",
+):
+    run_ids = [int(part) for part in runs.split(",") if part.strip().isdigit() and 1 <= int(part) <= INT32_MAX]
+    for run_id in run_ids:
+        try:
+            store.get_run(run_id=run_id)
+        except NotFound as error:
+            return _not_found(request, settings, store, str(error))
+    if not run_ids:
+        return _not_found(request, settings, store, "choose runs to compare on the runs page")
+    metric = metric if metric in COMPARE_METRICS else "eval/success_rate"
+    return _page(
+        request, "compare.html", settings, store, title="Compare runs", run_ids=run_ids, metric=metric,
+        metrics=COMPARE_METRICS,
+    )  # fmt: skip
 
 
 @router.get("/queue", response_class=HTMLResponse)

@@ -8,7 +8,7 @@ import pydantic
 from fastapi import APIRouter, HTTPException, Query, Response, status
 
 from app.deps import ReadAuth, RunId, SettingsDep, StoreDep, WriteAuth
-from app.schemas import WRITE_ERRORS, RolloutOut, RunCreate, RunDetail, RunOut, RunUpdate, errors
+from app.schemas import WRITE_ERRORS, RolloutOut, RunCreate, RunDetail, RunOut, RunUpdate, SweepCreate, errors
 from app.settings import Settings
 from app.store import NotFound, Run, Store
 from learner.algorithms import ALGORITHM_SPECS
@@ -129,6 +129,41 @@ def create_run(body: RunCreate, store: StoreDep, settings: SettingsDep, _auth: W
         priority=body.priority,
     )
     return run_detail(store, run)
+
+
+@router.post(
+    "/sweep", status_code=status.HTTP_201_CREATED, response_model=list[RunOut], responses=errors(*WRITE_ERRORS)
+)
+def create_sweep(body: SweepCreate, store: StoreDep, settings: SettingsDep, _auth: WriteAuth) -> list[RunOut]:
+    """Start methods × seeds in one action: every combination is checked first (422 names the first bad one and
+    nothing is created), then one run each, named "<name> · <algorithm> · seed <n>"."""
+    algorithms, seeds = list(dict.fromkeys(body.algorithms)), list(dict.fromkeys(body.seeds))
+    checked = []
+    for algorithm in algorithms:
+        for seed in seeds:
+            single = RunCreate(
+                env_id=body.env_id, algorithm=algorithm, seed=seed, goal_set_id=body.goal_set_id,
+                priority=body.priority, config=body.config,
+            )  # fmt: skip
+            config = validate_run_config(single, settings)
+            check_goal_set(store, algorithm=config.algorithm, goal_set_id=body.goal_set_id)
+            checked.append(config)
+    prefix = body.name.strip() or f"sweep {body.env_id}"
+    runs = [
+        store.create_run(
+            env_id=config.env_id,
+            algorithm=config.algorithm,
+            config=config.to_dict(),
+            seed=config.seed,
+            goal_set_id=body.goal_set_id,
+            total_steps=config.total_steps,
+            priority=body.priority,
+            name=f"{prefix} · {config.algorithm} · seed {config.seed}"[:200],
+        )  # fmt: skip
+        for config in checked
+    ]
+    waiting = store.queue_report()
+    return [run_out(store, run, waiting) for run in runs]
 
 
 @router.get("", response_model=list[RunOut])
