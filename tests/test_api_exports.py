@@ -82,6 +82,10 @@ def test_queries_zip_rollout_video_and_policy_before_a_checkpoint(client: TestCl
     assert data.count(b"00dc") == 10  # 5 frames and their 5 index entries
     assert b"MJPG" in data[:400] and data.count(b"\xff\xd8\xff") == 5  # one JPEG per frame
 
+    store.record_rollout(run_id=run_id, env_step=3000, data=b"GIF89a", frame_count=1)  # broken: 404, not 500
+    broken = client.get(f"/api/runs/{run_id}/rollout.avi")
+    assert broken.status_code == 404 and "not a readable GIF" in broken.json()["detail"]
+
     missing = client.get(f"/api/runs/{run_id}/policy")
     assert missing.status_code == 404 and "no checkpoint yet" in missing.json()["detail"]
 

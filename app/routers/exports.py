@@ -96,6 +96,9 @@ def rollout_video(
     rollout = store.latest_rollout(run_id=run_id)
     if rollout is None:
         raise HTTPException(status_code=404, detail=f"run {run_id} has no rollout yet")
-    video = gif_to_avi(store.rollout_data(rollout_id=rollout.id))
+    try:
+        video = gif_to_avi(store.rollout_data(rollout_id=rollout.id))
+    except (OSError, ValueError, SyntaxError):  # not a readable animation (Pillow's errors for broken images)
+        raise HTTPException(status_code=404, detail=f"run {run_id}: its latest rollout is not a readable GIF") from None
     headers = _attachment(f"run-{run_id}-step-{rollout.env_step}.avi") if download else {}
     return Response(video, media_type="video/x-msvideo", headers=headers)
