@@ -93,8 +93,14 @@ def _pump(prefix: str, stream, lock: threading.Lock) -> None:  # type: ignore[no
             sys.stdout.flush()
 
 
+def default_learners(cores: int | None = None) -> int:
+    """As many learners as the cores allow: one per two cores (a learner trains best on two threads), at least 1."""
+    cores = cores if cores is not None else (os.cpu_count() or 1)
+    return max(1, cores // 2)
+
+
 def cmd_up(args: argparse.Namespace) -> int:
-    """The web server and one learner worker, their logs in one terminal; Ctrl-C stops both."""
+    """The web server and N learner workers, their logs in one terminal; Ctrl-C stops them all."""
     settings = get_settings()
     _migrate(settings)
     if args.demo:
@@ -105,15 +111,22 @@ def cmd_up(args: argparse.Namespace) -> int:
     serve = raq + ["serve"] + (["--port", str(args.port)] if args.port else [])
     # Own process groups: a terminal's Ctrl-C reaches only this process, which then asks each child once.
     spawn = {"stdout": subprocess.PIPE, "stderr": subprocess.STDOUT, "text": True, "bufsize": 1, "process_group": 0}
-    children = {
-        "web    ": subprocess.Popen(serve, **spawn),
-        "learner": subprocess.Popen(raq + ["learn"], **spawn),
-    }
+    learners = args.learners if args.learners is not None else default_learners()
+    if learners < 1:
+        print("raq up: --learners must be at least 1", file=sys.stderr)
+        return 2
+    children = {"web    ": subprocess.Popen(serve, **spawn)}
+    learner_env = dict(os.environ)
+    if learners > 1 and "OMP_NUM_THREADS" not in learner_env:  # share the cores instead of oversubscribing them
+        learner_env["OMP_NUM_THREADS"] = str(max(1, (os.cpu_count() or 1) // learners))
+    for index in range(learners):
+        prefix = "learner" if learners == 1 else f"learn-{index + 1}"
+        children[prefix] = subprocess.Popen(raq + ["learn"], env=learner_env, **spawn)
     lock = threading.Lock()
     for prefix, child in children.items():
         threading.Thread(target=_pump, args=(prefix, child.stdout, lock), daemon=True).start()
     port = args.port or settings.port
-    print(f"raq up: web on http://{settings.host}:{port}  (Ctrl-C stops both)", flush=True)
+    print(f"raq up: web on http://{settings.host}:{port} and {learners} learner(s)  (Ctrl-C stops all)", flush=True)
 
     stopping = threading.Event()
 
@@ -127,7 +140,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         exited = [(name, child.returncode) for name, child in children.items() if child.poll() is not None]
         if exited:
             name, code = exited[0]
-            print(f"raq up: {name.strip()} exited with code {code}; stopping the other", flush=True)
+            print(f"raq up: {name.strip()} exited with code {code}; stopping the others", flush=True)
             code = code or 1
             break
         time.sleep(0.2)
@@ -160,8 +173,12 @@ def build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--once", action="store_true", help="train at most one run, then exit")
     learn.set_defaults(handler=cmd_learn)
 
-    up = commands.add_parser("up", help="web server and one learner worker together")
+    up = commands.add_parser("up", help="web server and learner workers together")
     up.add_argument("--port", type=int, default=None)
+    up.add_argument(
+        "--learners", type=int, default=None,
+        help=f"learner workers, each training one run at a time (default: one per two cores: {default_learners()})",
+    )  # fmt: skip
     up.add_argument("--demo", action="store_true", help="when there are no runs, start a demo pusher run")
     up.set_defaults(handler=cmd_up)
 

@@ -14,6 +14,8 @@ logger = logging.getLogger(__name__)
 
 DEMO_GOAL_SET = "pusher goals (simulated)"
 DEMO_GOAL_COUNT = 10
+DEMO_STEPS = 25_000
+DEMO_PRIORITY = -10
 
 
 def png_bytes(pixels: np.ndarray) -> bytes:
@@ -55,7 +57,12 @@ def ensure_demo_run(settings: Settings) -> int | None:
             if existing
             else add_simulated_goal_set(store, task="pusher", name=DEMO_GOAL_SET, count=DEMO_GOAL_COUNT)
         )
-        config = TrainConfig(env_id="VisualPusher-v0", algorithm="vice_raq", query_every=1000, query_budget=30)
+        # Short enough to finish and show learning (the pusher reaches 90% within about 20K steps), and behind any
+        # run a person starts (priority -10): it yields to theirs at its next checkpoint (every 5,000 steps).
+        config = TrainConfig(
+            env_id="VisualPusher-v0", algorithm="vice_raq", query_every=1000, query_budget=30,
+            total_steps=DEMO_STEPS, checkpoint_every=5000,
+        )  # fmt: skip
         run = store.create_run(
             name="demo: push the mug onto the coaster",
             env_id=config.env_id,
@@ -64,8 +71,13 @@ def ensure_demo_run(settings: Settings) -> int | None:
             seed=config.seed,
             goal_set_id=goal_set_id,
             total_steps=config.total_steps,
+            priority=DEMO_PRIORITY,
         )
-        print(f"demo: queued run {run.id} (VICE-RAQ on VisualPusher-v0, a query every 1000 steps)", flush=True)
+        print(
+            f"demo: queued run {run.id} (VICE-RAQ on VisualPusher-v0, {DEMO_STEPS} steps, a query every 1000 steps, "
+            f"priority {DEMO_PRIORITY})",
+            flush=True,
+        )
         return run.id
     finally:
         store.dispose()

@@ -13,7 +13,7 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
-from app.routers import events, goal_sets, health, metrics, pages, queries, runs
+from app.routers import compare, docs, envs, events, exports, goal_sets, health, metrics, pages, queries, runs
 from app.schemas import errors
 from app.security import LoginRateLimit, RequestGuard
 from app.settings import Settings, get_settings
@@ -58,6 +58,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         summary="Teach a robot a visual skill from goal photos; answer its yes/no questions.",
         version="0.1.0",
         lifespan=lifespan,
+        docs_url=None,  # app.routers.docs serves Swagger UI's files itself (no CDN); ReDoc needs one, so none
+        redoc_url=None,
         # app.security.RequestGuard may answer any route so: a malformed Content-Length, a body over the cap
         responses=errors(400, 413),
     )
@@ -86,11 +88,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.include_router(health.router)
     app.include_router(runs.router)
+    app.include_router(exports.router)
+    app.include_router(compare.router)
     app.include_router(goal_sets.router)
     app.include_router(queries.router)
     app.include_router(metrics.router)
     app.include_router(events.router)
+    app.include_router(envs.router)
     app.include_router(pages.router)
+    app.include_router(docs.router)
+    app.mount(docs.SWAGGER_UI_PREFIX, StaticFiles(directory=docs.SWAGGER_UI_DIR), name="swagger-ui")
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     # The last added is the outermost: the guard (token, body size, security headers) sees every request
     # first, then (without a token) the Host is checked.

@@ -6,7 +6,7 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
-from app.store import INT32_MAX, GoalExample, GoalSet, Query, Rollout, Run, seconds_since
+from app.store import INT32_MAX, GoalExample, GoalSet, Query, Rollout, Run, RunPhase, RunStatus, seconds_since
 from app.store.models import Event
 
 
@@ -76,10 +76,22 @@ class GoalExampleOut(BaseModel):
     original_url: str
     model_url: str
     display_url: str
+    crop_note: str | None = Field(
+        description="How a photo that is not square was centre-cropped for the model (None when it is square)."
+    )
 
     @classmethod
     def of(cls, example: GoalExample) -> "GoalExampleOut":
         base = f"/api/goal-examples/{example.id}/image"
+        crop_note = None
+        if example.width != example.height:
+            side = min(example.width, example.height)
+            cut = "width" if example.width > example.height else "height"
+            kept = round(100 * side / max(example.width, example.height))
+            crop_note = (
+                f"not square: the model sees the middle {side}×{side} of the {example.width}×{example.height} photo "
+                f"({kept}% of its {cut}; the {'left and right' if cut == 'width' else 'top and bottom'} edges cut off)"
+            )
         return cls(
             id=example.id,
             goal_set_id=example.goal_set_id,
@@ -92,6 +104,7 @@ class GoalExampleOut(BaseModel):
             original_url=f"{base}?kind=original",
             model_url=f"{base}?kind=model",
             display_url=f"{base}?kind=display",
+            crop_note=crop_note,
         )
 
 
@@ -140,9 +153,21 @@ class RunCreate(InputModel):
     algorithm: Text | None = Field(default=None, max_length=50)
     seed: int | None = None
     goal_set_id: int | None = Field(default=None, ge=1, le=INT32_MAX)
+    priority: int = Field(
+        default=0, ge=-100, le=100,
+        description="Learners take the queued run of the highest priority first; the demo has -10. A lower-priority "
+        "run yields to a higher-priority one that waits, at its next checkpoint.",
+    )  # fmt: skip
     config: dict[str, Any] = Field(
         default_factory=dict, description="TrainConfig fields to override; an unknown one is refused (422)."
     )
+
+
+class RunUpdate(InputModel):
+    """Change a run's priority, or archive it (a stopped, failed or finished run) / take it out of the archive."""
+
+    priority: int | None = Field(default=None, ge=-100, le=100)
+    archived: bool | None = None
 
 
 class RolloutOut(BaseModel):
@@ -188,6 +213,11 @@ class RunOut(BaseModel):
     goal_set_id: int | None
     status: str
     status_reason: str
+    waiting_reason: str | None = Field(
+        default=None, description="For a queued run: why it waits ('learner busy with #1; after #4')."
+    )
+    priority: int
+    archived: bool
     stop_requested: bool
     worker: str | None
     step: int
@@ -199,7 +229,14 @@ class RunOut(BaseModel):
     heartbeat_age_seconds: float | None
     success_rate: float | None = Field(description="Latest eval/success_rate.")
     steps_per_second: float | None = Field(description="Latest perf/steps_per_second.")
-    eta_seconds: float | None = Field(description="Latest perf/eta_seconds.")
+    eta_seconds: float | None = Field(
+        description="Latest perf/eta_seconds (from the training phase's speed; none during the warm-up), while active."
+    )
+    phase: str | None = Field(default=None, description="What the learner is doing: " + ", ".join(RunPhase.ALL))
+    next_query_step: int | None = Field(
+        default=None, description="The step of the next question (None: the algorithm asks none, or budget spent)."
+    )
+    next_query_seconds: float | None = Field(default=None, description="About when, at the current speed.")
     queries: QueryCountsOut
 
     @classmethod
@@ -211,7 +248,15 @@ class RunOut(BaseModel):
         success_rate: float | None,
         steps_per_second: float | None,
         eta_seconds: float | None,
+        waiting_reason: str | None = None,
+        asks_queries: bool = False,
     ) -> "RunOut":
+        active = run.status in RunStatus.ACTIVE
+        speed = steps_per_second if active else None  # a stopped run has no speed
+        next_step = next_query_step(run, asked=queries.get("asked", 0)) if asks_queries else None
+        next_seconds = None
+        if next_step is not None and speed:
+            next_seconds = max(0.0, (next_step - run.step) / speed)
         return cls(
             id=run.id,
             name=run.name,
@@ -221,6 +266,9 @@ class RunOut(BaseModel):
             goal_set_id=run.goal_set_id,
             status=run.status,
             status_reason=run.status_reason,
+            waiting_reason=waiting_reason,
+            priority=run.priority,
+            archived=run.archived,
             stop_requested=run.stop_requested,
             worker=run.worker,
             step=run.step,
@@ -231,10 +279,25 @@ class RunOut(BaseModel):
             heartbeat_at=run.heartbeat_at,
             heartbeat_age_seconds=seconds_since(run.heartbeat_at),
             success_rate=success_rate,
-            steps_per_second=steps_per_second,
-            eta_seconds=eta_seconds,
+            steps_per_second=speed,
+            eta_seconds=eta_seconds if active else None,
+            phase=run.phase if active else None,
+            next_query_step=next_step,
+            next_query_seconds=next_seconds,
             queries=QueryCountsOut(**queries),
         )
+
+
+def next_query_step(run: Run, *, asked: int) -> int | None:
+    """The next multiple of query_every after the run's step, while its query budget lasts and it has not ended."""
+    config = run.config or {}
+    every, budget = int(config.get("query_every") or 0), config.get("query_budget")
+    if every <= 0 or run.status not in (RunStatus.QUEUED, *RunStatus.ACTIVE):
+        return None
+    if budget is not None and asked >= int(budget):
+        return None
+    following = (run.step // every + 1) * every
+    return following if not run.total_steps or following <= run.total_steps else None
 
 
 class RunDetail(RunOut):
@@ -332,3 +395,28 @@ class EventOut(BaseModel):
         return cls(
             id=event.id, run_id=event.run_id, level=event.level, message=event.message, created_at=event.created_at
         )
+
+
+# ---------------------------------------------------------------- sweeps and comparison
+class SweepCreate(InputModel):
+    """Methods × seeds in one action: one run per (algorithm, seed), all with the same env, goal set and config."""
+
+    name: Text = Field(default="", max_length=150)
+    env_id: Text = Field(max_length=200)
+    algorithms: list[Text] = Field(min_length=1, max_length=5, description="Keys of the algorithm table.")
+    seeds: list[Annotated[int, Field(ge=0, le=INT32_MAX)]] = Field(min_length=1, max_length=10)
+    goal_set_id: int | None = Field(default=None, ge=1, le=INT32_MAX)
+    priority: int = Field(default=0, ge=-100, le=100)
+    config: dict[str, Any] = Field(default_factory=dict)
+
+
+class CompareGroupOut(BaseModel):
+    label: str = Field(description="The group: env id and algorithm.")
+    run_ids: list[int]
+    # [step, mean, min, max, n] at each step every run of the group recorded
+    points: list[Annotated[list[float], Field(min_length=5, max_length=5)]]
+
+
+class CompareOut(BaseModel):
+    metric: str
+    groups: list[CompareGroupOut]

@@ -20,30 +20,14 @@ from typing import Any
 
 import torch
 
-FILENAME = "checkpoint.pt"
+from learner.checkpoint_location import FILENAME, checkpoint_path, checkpoint_url, is_remote
+
+__all__ = ["FILENAME", "checkpoint_path", "checkpoint_url", "is_remote", "load_checkpoint", "save_checkpoint"]
+
 # Object stores whose writes become visible at once and whole when the upload completes.
 ATOMIC_UPLOAD_PROTOCOLS = frozenset({"s3", "s3a", "gs", "gcs", "az", "abfs", "abfss", "adl"})
 # Upload part size (and read-ahead block) on object stores: the most of a checkpoint held in memory at once.
 BLOCK_SIZE = 16 * 1024 * 1024
-
-
-def checkpoint_path(checkpoint_dir: Path | str, run_id: int) -> Path:
-    """A run's checkpoint under a local directory."""
-    return Path(checkpoint_dir) / f"run-{run_id}" / FILENAME
-
-
-def checkpoint_url(base: Path | str, run_id: int) -> str:
-    """A run's checkpoint under `base`: a local directory or an fsspec URL such as s3://bucket/prefix."""
-    base = str(base)
-    if not is_remote(base):
-        return str(checkpoint_path(base, run_id))
-    return f"{base.rstrip('/')}/run-{run_id}/{FILENAME}"
-
-
-def is_remote(location: Path | str) -> bool:
-    """Whether `location` is a URL of another file system than the local one (file:// counts as local)."""
-    location = str(location)
-    return "://" in location and not location.startswith("file://")
 
 
 def _local(location: Path | str) -> Path:

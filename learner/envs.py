@@ -232,3 +232,19 @@ def encode_gif(frames: list[np.ndarray], frame_ms: int = 80) -> bytes:
     buffer = io.BytesIO()
     images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:], duration=frame_ms, loop=0)
     return buffer.getvalue()
+
+
+def first_frames(env_id: str, *, image_size: int, display_size: int, seed: int = 0) -> tuple[bytes, bytes, str]:
+    """The env's first observation after reset(seed) as the networks see it and its display render, as PNGs, and a
+    line about the env (action space, whether it reports success). Gymnasium only, no torch: the server calls it
+    for the New run form's preview and the goal-set page's camera view (only for env ids env_id_problem allows)."""
+    env = make_env(env_id, image_size=image_size, display_size=display_size)
+    try:
+        observation, info = env.reset(seed=seed)
+        image = model_image(observation, image_size)
+        display = display_image(env, display_size, image)
+        space = env.action_space
+        success = "reports success" if success_of(info) is not None else "reports no success (no ground truth)"
+        return encode_png(image), encode_png(display), f"action space {space}; {success}"
+    finally:
+        env.close()

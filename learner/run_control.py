@@ -61,6 +61,19 @@ class RunControl:
         self.step_known = False  # until the checkpoint is read, heartbeats leave the run's stored step alone
         self.last_beat = 0.0
         self.beat_refused = False
+        self.yield_to: Any = None  # a higher-priority queued run found at the last checkpoint
+        self.phase: str | None = None  # RunPhase, sent with every heartbeat
+
+    def set_phase(self, phase: str) -> None:
+        """Say what the learner is doing now (warm-up, training, evaluating): one heartbeat when it changes."""
+        if phase != self.phase:
+            self.phase = phase
+            if not self.beat():
+                self.beat_refused = True
+
+    def look_for_higher_priority(self) -> None:
+        """At a checkpoint: note a higher-priority run waiting for a learner; the loop then yields to it."""
+        self.yield_to = self.store.higher_priority_waiting(run_id=self.run_id)
 
     @property
     def interrupted(self) -> bool:
@@ -70,7 +83,7 @@ class RunControl:
         """Send a heartbeat (with the step, once known); False when the store refuses it."""
         self.last_beat = time.monotonic()
         step = self.counters.step if self.step_known else None
-        return self.store.heartbeat(run_id=self.run_id, worker=self.worker, step=step, status=status)
+        return self.store.heartbeat(run_id=self.run_id, worker=self.worker, step=step, status=status, phase=self.phase)
 
     def tick(self) -> None:
         """Heartbeat when one is due (also inside long steps); a refusal is acted on at the next env step."""
@@ -95,6 +108,17 @@ class RunControl:
         """The run is still this worker's (a learner that stalled past the staleness limit may have lost it)."""
         run = self.store.get_run(run_id=self.run_id)
         return run.worker == self.worker and run.status in RunStatus.ACTIVE
+
+    def yielded(self) -> str:
+        """After a checkpoint found a higher-priority run waiting: queue this run again so a learner takes that one
+        first; this run resumes from the checkpoint when a learner is free."""
+        other = self.yield_to
+        self.yield_to = None
+        self.beat()
+        reason = f"yielded to run #{other.id} (priority {other.priority})"
+        self.store.set_run_status(run_id=self.run_id, status=RunStatus.QUEUED, reason=reason, worker=self.worker)
+        self.event(f"{reason} at step {self.counters.step}: queued again, it resumes from this checkpoint")
+        return Outcome.REQUEUED
 
     def still_held_and_stopping(self) -> bool:
         """The run is still this worker's and a person asked it to stop (else it was taken from this worker)."""

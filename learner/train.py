@@ -24,10 +24,11 @@ import numpy as np
 import torch
 from PIL import Image, ImageOps
 
-from app.store import Run, RunStatus, Store
+from app.store import Run, RunPhase, RunStatus, Store
 from learner.algorithms import ALGORITHM_SPECS
 from learner.checkpoint import checkpoint_url as checkpoint_location
 from learner.checkpoint import load_checkpoint, save_checkpoint
+from learner.checkpoint_location import POLICY_FILENAME, sibling
 from learner.config import TrainConfig
 from learner.envs import (
     check_action_space,
@@ -129,7 +130,10 @@ class Trainer:
         self._begin_episode(seed=None if resumed else cfg.seed)
         if resumed:
             self._redo_interrupted_work()
+        self.control.set_phase(self._loop_phase())
         self.log_time, self.log_step, self.log_updates = time.monotonic(), counters.step, counters.total_updates
+        # the ETA is taken from the training phase's speed only (the random warm-up runs several times faster)
+        self.training_since = (self.log_time, counters.step) if counters.step >= cfg.initial_random_steps else None
         while counters.step < cfg.total_steps:
             outcome = self._check_control()
             if outcome is not None:
@@ -148,6 +152,8 @@ class Trainer:
             self.queries.ask()
         if step == cfg.initial_random_steps:
             self.control.event(f"warm-up done at step {step}: policy acting, SAC updates started")
+            self.control.set_phase(RunPhase.TRAINING)
+            self.training_since = (time.monotonic(), step)
         if step >= cfg.initial_random_steps:
             self._sac_updates()
         if step % cfg.eval_every == 0:
@@ -156,6 +162,7 @@ class Trainer:
             self._log()
         if step % cfg.checkpoint_every == 0 and step < cfg.total_steps and not self.control.interrupted:
             self._checkpoint()  # (interrupted: the loop checkpoints at once)
+            self.control.look_for_higher_priority()
         self.control.tick()
 
     def _set_up(self) -> bool | None:
@@ -280,6 +287,8 @@ class Trainer:
             return self.control.requeue()
         if self.control.take_refusal():
             return self._stop_or_lost()
+        if self.control.yield_to is not None:  # found at this step's checkpoint
+            return self.control.yielded()
         return None
 
     def _stop_or_lost(self) -> str:
@@ -366,10 +375,17 @@ class Trainer:
         return True
 
     # ================================================================== evaluation and metrics
+    def _loop_phase(self) -> str:
+        return RunPhase.WARM_UP if self.counters.step < self.config.initial_random_steps else RunPhase.TRAINING
+
     def _evaluate(self) -> None:
         step = self.counters.step
-        if self.evaluator.evaluate(step):
-            self.counters.evaluated_step = step
+        self.control.set_phase(RunPhase.EVALUATING)
+        try:
+            if self.evaluator.evaluate(step):
+                self.counters.evaluated_step = step
+        finally:
+            self.control.set_phase(self._loop_phase())
 
     def _log(self) -> None:
         now, step, counters = time.monotonic(), self.counters.step, self.counters
@@ -386,7 +402,12 @@ class Trainer:
         values["perf/steps_per_second"] = steps_per_second
         values["perf/updates_per_second"] = (counters.total_updates - self.log_updates) / elapsed
         remaining = self.config.total_steps - step
-        values["perf/eta_seconds"] = remaining / steps_per_second if steps_per_second > 0 else 0.0
+        training_since = getattr(self, "training_since", None)
+        if training_since is not None and step - training_since[1] >= self.config.log_every:
+            # the training phase's own speed so far (evaluations, classifier epochs and queries included)
+            training_speed = (step - training_since[1]) / max(now - training_since[0], 1e-9)
+            values["perf/training_steps_per_second"] = training_speed
+            values["perf/eta_seconds"] = remaining / training_speed
         self.store.record_metrics(run_id=self.run_id, step=step, values=values)
         self.update_sums.clear()
         self.update_count = 0
@@ -403,6 +424,8 @@ class Trainer:
             self.queries.score_pending()
         started = time.monotonic()
         size = save_checkpoint(self.checkpoint_file, self._state())
+        # the policy alone (actor, encoder, config: a few MB), for GET /api/runs/{id}/policy and learner.policy
+        save_checkpoint(sibling(self.checkpoint_file, POLICY_FILENAME), self._policy_state())
         seconds = time.monotonic() - started
         self.control.event(f"checkpoint written at step {self.counters.step} ({size / 1e6:.1f} MB in {seconds:.1f} s)")
         self.control.tick()
@@ -423,6 +446,12 @@ class Trainer:
                 "env": _env_rng_state(self.env),
             },
         }
+
+    def _policy_state(self) -> dict[str, Any]:
+        modules = {name: module.state_dict() for name, module in self.agent.modules().items() if name != "critic"}
+        modules.pop("critic_target", None)
+        return {"version": CHECKPOINT_VERSION, "config": json.dumps(self.config.to_dict()), "step": self.counters.step,
+                "agent": modules}  # fmt: skip
 
     def _restore(self, state: dict[str, Any]) -> None:
         if state.get("version") != CHECKPOINT_VERSION:

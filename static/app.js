@@ -123,19 +123,65 @@ function statusPill(run) {
 }
 
 function setPendingBadge(count) {
+  notifyQuestions(count);
   const badge = document.getElementById("nav-pending");
   if (!badge) return;
   badge.textContent = String(count);
   badge.classList.toggle("zero", count === 0);
 }
 
+// Browser notifications, when the user allowed them: one each time the number of waiting questions grows.
+const notifier = { last: null };
+
+function notificationsAllowed() {
+  return "Notification" in window && Notification.permission === "granted";
+}
+
+function notifyQuestions(count) {
+  const previous = notifier.last;
+  notifier.last = count;
+  if (previous === null || count <= previous || !notificationsAllowed()) return;
+  const note = new Notification("vice-raq: a question is waiting", {
+    body: `${count} question${count === 1 ? "" : "s"} waiting for your answer`, tag: "vice-raq-queue",
+  });
+  note.onclick = () => {
+    window.focus();
+    if (window.location.pathname !== "/queue") window.location.href = "/queue";
+  };
+}
+
+/** The "Notify me" button: ask for permission, then say whether notifications are on. */
+function setUpNotifyButton(button) {
+  if (!button) return;
+  const show = () => {
+    if (!("Notification" in window)) {
+      button.textContent = "Notifications not supported";
+      button.disabled = true;
+    } else if (Notification.permission === "granted") {
+      button.textContent = "Notifications on";
+      button.disabled = true;
+    } else if (Notification.permission === "denied") {
+      button.textContent = "Notifications blocked";
+      button.disabled = true;
+    }
+  };
+  show();
+  button.addEventListener("click", async () => {
+    await Notification.requestPermission();
+    show();
+  });
+}
+
 /** Call `fn` now and then every `ms` while the tab is visible; returns a function that stops it. */
 function poll(fn, ms) {
   let stopped = false;
   let timer = null;
+  let ticks = 0;
   async function tick() {
     if (stopped) return;
-    if (!document.hidden) {
+    ticks += 1;
+    // a hidden tab keeps polling, more slowly, only when it may notify the user of a new question
+    if (!document.hidden || (notificationsAllowed() && ticks % 5 === 0)) {
       try {
         await fn();
       } catch (error) {

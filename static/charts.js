@@ -23,12 +23,25 @@ function niceTicks(min, max, count) {
   return ticks;
 }
 
-function tickLabel(value) {
+function tickLabel(value, extra = 0) {
   const abs = Math.abs(value);
-  if (abs >= 1e6) return Number((value / 1e6).toFixed(abs >= 1e7 ? 0 : 1)) + "M";
-  if (abs >= 1e3) return Number((value / 1e3).toFixed(abs >= 1e4 ? 0 : 1)) + "k";
-  if (abs !== 0 && abs < 0.01) return value.toExponential(0);
-  return String(Number(value.toPrecision(3)));
+  if (abs >= 1e6) return Number((value / 1e6).toFixed((abs >= 1e7 ? 0 : 1) + extra)) + "M";
+  if (abs >= 1e3) return Number((value / 1e3).toFixed((abs >= 1e4 ? 0 : 1) + extra)) + "k";
+  if (abs !== 0 && abs < 0.01) return value.toExponential(extra);
+  return String(Number(value.toPrecision(3 + extra)));
+}
+
+/** Labels for the ticks, with as many more digits as it takes for no two to read the same (10.5k was "11k"). */
+function tickLabels(ticks, format = tickLabel) {
+  let labels = ticks.map((t) => format(t, 0));
+  for (let extra = 1; extra <= 4 && new Set(labels).size < labels.length; extra++) {
+    labels = ticks.map((t) => format(t, extra));
+  }
+  return labels;
+}
+
+function percentLabel(value, extra = 0) {
+  return Number((value * 100).toFixed(extra)) + "%";
 }
 
 class LineChart {
@@ -60,9 +73,10 @@ class LineChart {
       const points = series[spec.name];
       if (!points || !points.length) continue;
       const existing = this.data[spec.name] || [];
-      const byStep = new Map(existing.map((p) => [p[0], p[1]]));
-      for (const [step, value] of points) byStep.set(step, value);
-      this.data[spec.name] = [...byStep.entries()].sort((a, b) => a[0] - b[0]);
+      // a point is [step, value] or, for a series with a spread band, [step, mean, low, high, ...]
+      const byStep = new Map(existing.map((p) => [p[0], p]));
+      for (const point of points) byStep.set(point[0], point);
+      this.data[spec.name] = [...byStep.values()].sort((a, b) => a[0] - b[0]);
       changed = true;
     }
     if (changed) this.render();
@@ -90,8 +104,8 @@ class LineChart {
       xMin = Math.max(0, xMin - 1);
       xMax = xMax + 1;
     }
-    let yMin = Math.min(...all.map((p) => p[1]));
-    let yMax = Math.max(...all.map((p) => p[1]));
+    let yMin = Math.min(...all.map((p) => Math.min(p[1], p.length > 3 ? p[2] : p[1])));
+    let yMax = Math.max(...all.map((p) => Math.max(p[1], p.length > 3 ? p[3] : p[1])));
     if (this.options.yMin !== undefined) yMin = Math.min(yMin, this.options.yMin);
     if (this.options.yMax !== undefined) yMax = Math.max(yMax, this.options.yMax);
     const yTicks = niceTicks(yMin, yMax, 4);
@@ -103,16 +117,28 @@ class LineChart {
     const x = (v) => PAD.left + ((v - xMin) / (xMax - xMin)) * plotW;
     const y = (v) => PAD.top + (1 - (v - yMin) / (yMax - yMin || 1)) * plotH;
 
-    for (const t of yTicks) {
+    const yLabels = tickLabels(yTicks, this.options.percent ? percentLabel : tickLabel);
+    yTicks.forEach((t, i) => {
       this.line(PAD.left, y(t), CHART_W - PAD.right, y(t), "grid");
-      this.text(PAD.left - 6, y(t) + 4, this.options.percent ? fmtPercent(t) : tickLabel(t), "end");
-    }
-    for (const t of xTicks) {
-      this.text(x(t), CHART_H - PAD.bottom + 16, tickLabel(t), "middle");
-    }
+      this.text(PAD.left - 6, y(t) + 4, yLabels[i], "end", "tick y-tick");
+    });
+    const xLabels = tickLabels(xTicks);
+    xTicks.forEach((t, i) => this.text(x(t), CHART_H - PAD.bottom + 16, xLabels[i], "middle", "tick x-tick"));
     this.line(PAD.left, PAD.top + plotH, CHART_W - PAD.right, PAD.top + plotH, "axis");
     this.text(CHART_W - PAD.right, CHART_H - 2, "env steps", "end");
 
+    for (const s of series) {
+      if (!s.band || s.points.length < 2) continue;
+      const upper = s.points.map((p, i) => (i ? "L" : "M") + x(p[0]).toFixed(1) + " " + y(p[3]).toFixed(1));
+      const lower = [...s.points].reverse().map((p) => "L" + x(p[0]).toFixed(1) + " " + y(p[2]).toFixed(1));
+      const band = document.createElementNS(SVG_NS, "path");
+      band.setAttribute("d", upper.join(" ") + " " + lower.join(" ") + " Z");
+      band.setAttribute("class", "band");
+      band.setAttribute("fill", s.color);
+      band.setAttribute("fill-opacity", "0.15");
+      band.setAttribute("data-series", s.name);
+      svg.appendChild(band);
+    }
     for (const s of series) {
       if (!s.points.length) continue;
       const d = s.points.map((p, i) => (i ? "L" : "M") + x(p[0]).toFixed(1) + " " + y(p[1]).toFixed(1)).join(" ");

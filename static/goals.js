@@ -14,14 +14,38 @@ async function uploadFiles(goalSetId, files) {
   statusBox("info", `Uploading ${files.length} photo${files.length === 1 ? "" : "s"}…`);
   try {
     const stored = await api("POST", `/api/goal-sets/${goalSetId}/examples`, form);
-    statusBox("ok", `Added ${stored.length} photo${stored.length === 1 ? "" : "s"}.`);
-    window.location.reload();
+    const cropped = stored.filter((example) => example.crop_note);
+    const notes = cropped.map((example) => `${example.filename}: ${example.crop_note}.`).join(" ");
+    statusBox(cropped.length ? "info" : "ok", `Added ${stored.length} photo${stored.length === 1 ? "" : "s"}. ${notes}`);
+    // keep the message readable when photos were cropped; the new photos show after the reload
+    setTimeout(() => window.location.reload(), cropped.length ? 4000 : 0);
   } catch (error) {
     statusBox("error", "Upload failed: " + error.message);
   }
 }
 
+/** The goal-set page's framing panel: the run camera's first frame of the chosen task, as the model sees it. */
+async function showFraming(input) {
+  const text = document.getElementById("framing-text");
+  text.textContent = "Making the env…";
+  try {
+    const params = new URLSearchParams({ env_id: input.value.trim(), size: input.dataset.size });
+    const preview = await api("GET", "/api/envs/preview?" + params);
+    document.getElementById("framing-observation").src = preview.observation_url;
+    document.getElementById("framing-display").src = preview.display_url;
+    text.textContent = preview.description;
+  } catch (error) {
+    text.textContent = error.message;
+  }
+}
+
 document.addEventListener("DOMContentLoaded", () => {
+  const framing = document.getElementById("framing-env");
+  if (framing) {
+    framing.addEventListener("change", () => showFraming(framing));
+    showFraming(framing);
+  }
+
   const createForm = document.getElementById("create-goal-set");
   if (createForm) {
     createForm.addEventListener("submit", async (event) => {

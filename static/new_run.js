@@ -32,8 +32,68 @@ function showErrors(form, detail, fallback) {
   box.classList.remove("hidden");
 }
 
+/** "0,1,2" or "0-2" (or empty: []) -> seeds; null when it cannot be read. */
+function parseSeeds(text) {
+  const seeds = [];
+  for (const part of text.split(",").map((p) => p.trim()).filter(Boolean)) {
+    const range = part.match(/^(\d+)\s*-\s*(\d+)$/);
+    if (range) {
+      const [from, to] = [Number(range[1]), Number(range[2])];
+      if (to < from || to - from > 50) return null;
+      for (let seed = from; seed <= to; seed++) seeds.push(seed);
+    } else if (/^\d+$/.test(part)) {
+      seeds.push(Number(part));
+    } else {
+      return null;
+    }
+  }
+  return seeds;
+}
+
+let previewTimer = null;
+let previewFor = null;
+
+/** The first frame of the env typed in the Task field (observation as the model sees it, display render). */
+async function showPreview(form) {
+  const envId = form.elements.env_id.value.trim();
+  if (!envId || envId === previewFor) return;
+  previewFor = envId;
+  const box = document.getElementById("env-preview");
+  const text = document.getElementById("env-preview-text");
+  const field = form.querySelector('.field[data-field="env_id"]');
+  field.classList.remove("invalid");
+  field.querySelectorAll(".error").forEach((element) => element.remove());
+  text.textContent = "Making the env…";
+  box.classList.remove("hidden");
+  try {
+    const preview = await api("GET", "/api/envs/preview?" + new URLSearchParams({ env_id: envId, size: "48" }));
+    if (previewFor !== envId) return;
+    document.getElementById("env-preview-observation").src = preview.observation_url;
+    document.getElementById("env-preview-display").src = preview.display_url;
+    box.querySelectorAll("figure").forEach((figure) => figure.classList.remove("hidden"));
+    text.textContent = preview.description;
+  } catch (error) {
+    if (previewFor !== envId) return;
+    box.querySelectorAll("figure").forEach((figure) => figure.classList.add("hidden"));
+    text.textContent = "";
+    field.classList.add("invalid");
+    const message = document.createElement("div");
+    message.className = "error";
+    message.textContent = error.message;
+    field.appendChild(message);
+  }
+}
+
 document.addEventListener("DOMContentLoaded", () => {
   const form = document.getElementById("new-run-form");
+  const envInput = form.elements.env_id;
+  const schedulePreview = () => {
+    clearTimeout(previewTimer);
+    previewTimer = setTimeout(() => showPreview(form), 500);
+  };
+  envInput.addEventListener("input", schedulePreview);
+  envInput.addEventListener("change", () => showPreview(form));
+  showPreview(form);
   form.addEventListener("submit", async (event) => {
     event.preventDefault();
     clearErrors(form);
@@ -56,15 +116,38 @@ document.addEventListener("DOMContentLoaded", () => {
     const seed = form.elements.seed.value.trim();
     const body = {
       name: form.elements.name.value,
-      env_id: form.elements.env_id.value,
+      env_id: form.elements.env_id.value.trim(),
       algorithm: form.elements.algorithm.value,
       seed: seed === "" ? 0 : Number(seed),
       goal_set_id: goalSet ? Number(goalSet) : null,
+      priority: Number(form.elements.priority.value || 0),
       config,
     };
+    // what was typed under More settings wins over the fields above (it used to be replaced silently)
+    for (const name of ["env_id", "algorithm", "seed"]) {
+      if (name in config) {
+        body[name] = config[name];
+        delete config[name];
+      }
+    }
     const button = document.getElementById("start-run");
+    const sweepMethods = [...form.querySelectorAll('input[name="sweep_algorithms"]:checked')].map((box) => box.value);
+    const sweepSeeds = parseSeeds(form.elements.sweep_seeds.value);
+    if (sweepSeeds === null) {
+      showErrors(form, [{ loc: ["body", "seeds"], msg: "seeds: write 0,1,2 or 0-2" }]);
+      return;
+    }
     button.disabled = true;
     try {
+      if (sweepMethods.length || sweepSeeds.length) {
+        const runs = await api("POST", "/api/runs/sweep", {
+          name: body.name, env_id: body.env_id, algorithms: sweepMethods.length ? sweepMethods : [body.algorithm],
+          seeds: sweepSeeds.length ? sweepSeeds : [body.seed], goal_set_id: body.goal_set_id,
+          priority: body.priority, config: body.config,
+        });
+        window.location.href = "/compare?runs=" + runs.map((run) => run.id).join(",");
+        return;
+      }
       const run = await api("POST", "/api/runs", body);
       window.location.href = `/runs/${run.id}`;
     } catch (error) {

@@ -140,6 +140,7 @@ document.addEventListener("DOMContentLoaded", () => {
     });
   }
   queue.runId = root.dataset.runId || null;
+  setUpNotifyButton(document.getElementById("notify-toggle"));
   document.getElementById("answer-yes").addEventListener("click", () => act("yes"));
   document.getElementById("answer-no").addEventListener("click", () => act("no"));
   document.getElementById("answer-skip").addEventListener("click", () => act("skip"));

@@ -8,6 +8,8 @@ const CHARTS = [
     series: [["eval/success_rate", "success"]] },
   { id: "chart-return", title: "Return",
     series: [["eval/return", "evaluation"], ["train/episode_return", "training episodes"]] },
+  { id: "chart-classifier-return", title: "Classifier return Σ fψ(s′) per evaluation episode",
+    series: [["eval/classifier_return", "evaluation"]] },
   { id: "chart-reward-loss", title: "Reward classifier loss", series: [["reward/loss", "loss"]] },
   { id: "chart-reward-acc", title: "Reward classifier accuracy", percent: true, yMin: 0, yMax: 1,
     series: [["reward/acc_goal", "on goal photos"], ["reward/acc_replay", "on replay frames"],
@@ -32,7 +34,7 @@ function renderRun(run) {
     reason.textContent = "Failed: " + run.status_reason;
   } else if (run.status === "queued") {
     reason.className = "muted small";
-    reason.textContent = "Waiting for a learner to pick it up (start one with `raq learn`).";
+    reason.textContent = "Queued: " + (run.waiting_reason || "waiting for a learner (start one with `raq learn`).");
   } else if (run.status === "starting") {
     reason.className = "muted small";
     reason.textContent = "A learner took the run and is setting up (environment, networks, checkpoint).";
@@ -47,9 +49,28 @@ function renderRun(run) {
   document.getElementById("stat-heartbeat").textContent = run.heartbeat_at ? fmtAge(run.heartbeat_age_seconds) : "–";
   document.getElementById("stat-worker").textContent = run.worker ? run.worker : "no learner yet";
   const active = run.status === "training" || run.status === "starting";
-  document.getElementById("stat-speed").textContent = active || run.steps_per_second ? fmtNumber(run.steps_per_second, 1) : "–";
-  document.getElementById("stat-eta").textContent = active ? fmtDuration(run.eta_seconds) : run.status === "finished" ? "done" : "–";
+  document.getElementById("stat-speed").textContent = active ? fmtNumber(run.steps_per_second, 1) : "–";
+  const warmUp = active && run.phase === "warm-up";
+  document.getElementById("stat-eta").textContent = run.status === "finished" ? "done"
+    : active && run.eta_seconds !== null ? fmtDuration(run.eta_seconds) : "–";
+  document.getElementById("stat-eta-sub").textContent = warmUp ? "known once training starts (after the warm-up)"
+    : "to total steps, at the training speed";
+  const phase = document.getElementById("run-phase");
+  const phases = [];
+  if (active && run.phase) phases.push(run.phase);
+  if (run.queries.pending) phases.push(`waiting for answers (${run.queries.pending})`);
+  phase.textContent = phases.join(" · ");
+  const nextQuery = document.getElementById("stat-next-query");
+  nextQuery.textContent = run.next_query_step === null ? ""
+    : `next question at step ${run.next_query_step.toLocaleString()}`
+      + (run.next_query_seconds !== null ? ` (about ${fmtDuration(run.next_query_seconds)})` : "");
   const q = run.queries;
+  // the Queries chart ends at the counts the card shows (the learner records them only every log_every steps)
+  const queriesChart = page.charts.find((chart) => chart.element.id === "chart-queries");
+  if (queriesChart && run.step > 0) {
+    queriesChart.add({ "queries/asked": [[run.step, q.asked]], "queries/answered": [[run.step, q.answered]],
+                       "queries/yes": [[run.step, q.yes]] });
+  }
   document.getElementById("stat-queries").textContent = `${q.answered} / ${q.asked}`;
   document.getElementById("stat-queries-sub").innerHTML =
     `answered · ${q.yes} yes` + (q.pending ? ` · <a href="/queue?run=${run.id}"><b>${q.pending} waiting</b></a>` : "");
@@ -57,6 +78,10 @@ function renderRun(run) {
   const canResume = run.status === "stopped" || run.status === "failed";
   document.getElementById("stop-run").classList.toggle("hidden", !canStop);
   document.getElementById("resume-run").classList.toggle("hidden", !canResume);
+  const archive = document.getElementById("archive-run");
+  archive.textContent = run.archived ? "Unarchive" : "Archive";
+  archive.classList.toggle("hidden", !run.archived && (run.status === "queued" || active));
+  document.getElementById("delete-run").classList.toggle("hidden", active);
 
   const rollout = run.latest_rollout;
   if (rollout && rollout.id !== page.rolloutId) {
@@ -83,6 +108,18 @@ async function refreshMetrics() {
   const data = await api("GET", `/api/runs/${page.run.id}/metrics?since_step=${since}`);
   page.lastStep = Math.max(page.lastStep, data.last_step);
   for (const chart of page.charts) chart.add(data.series);
+  showReturnCharts();
+}
+
+/** An env without a reward (its return all zeros) shows the classifier's return instead of a flat line. */
+function showReturnCharts() {
+  const [envReturn, classifierReturn] = ["chart-return", "chart-classifier-return"].map((id) =>
+    page.charts.find((chart) => chart.element.id === id));
+  const values = Object.values(envReturn.data).flat();
+  const flatZero = values.length > 0 && values.every((point) => point[1] === 0);
+  const hasClassifier = Object.values(classifierReturn.data).some((points) => points.length > 0);
+  envReturn.element.classList.toggle("hidden", flatZero && hasClassifier);
+  classifierReturn.element.classList.toggle("hidden", !hasClassifier);
 }
 
 async function refreshQueries() {
@@ -118,6 +155,26 @@ async function runAction(action) {
   }
 }
 
+async function changeRun(change) {
+  try {
+    renderRun(await api("PATCH", `/api/runs/${page.run.id}`, change));
+    toast("archived" in change ? (page.run.archived ? "Archived." : "Back among the runs.") : "Priority changed.");
+    refreshEvents();
+  } catch (error) {
+    toast(error.message, "error", 6000);
+  }
+}
+
+async function deleteRun() {
+  if (!window.confirm(`Delete run #${page.run.id} with its queries, metrics, events, rollouts and checkpoint?`)) return;
+  try {
+    await api("DELETE", `/api/runs/${page.run.id}`);
+    window.location.href = "/";
+  } catch (error) {
+    toast(error.message, "error", 6000);
+  }
+}
+
 document.addEventListener("DOMContentLoaded", () => {
   page.run = JSON.parse(document.getElementById("run-data").textContent);
   page.charts = CHARTS.map(
@@ -133,6 +190,10 @@ document.addEventListener("DOMContentLoaded", () => {
   renderRun(page.run);
   document.getElementById("stop-run").addEventListener("click", () => runAction("stop"));
   document.getElementById("resume-run").addEventListener("click", () => runAction("resume"));
+  document.getElementById("archive-run").addEventListener("click", () => changeRun({ archived: !page.run.archived }));
+  document.getElementById("run-priority").addEventListener("change", (event) =>
+    changeRun({ priority: Number(event.target.value) }));
+  document.getElementById("delete-run").addEventListener("click", deleteRun);
   poll(refreshRun, 2000);
   poll(refreshMetrics, 2000);
   poll(refreshQueries, 4000);

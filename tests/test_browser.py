@@ -105,7 +105,8 @@ def test_goal_photos_run_queue_and_curves(page: Page, live_server: str, store: S
 
     # 2. a run started from the new-run page; a bad value first shows the error beside its field
     page.goto(f"{live_server}/runs/new")
-    page.select_option("#env_id", "VisualPusher-v0")
+    page.fill("#env_id", "VisualPusher-v0")
+    expect(page.locator("#env-preview-text")).to_contain_text("reports success")
     expect(page.locator("#goal_set_id")).to_have_value(str(goal_set_id))
     page.fill("#query_every", "0")
     page.click("#start-run")

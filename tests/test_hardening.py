@@ -387,7 +387,9 @@ def test_every_response_carries_nosniff_and_a_content_security_policy(
         csp = response.headers["content-security-policy"]
         assert "script-src 'self';" in csp and "frame-ancestors 'none'" in csp and "object-src 'none'" in csp
         assert response.headers["x-frame-options"] == "DENY"
-    assert "cdn.jsdelivr.net" in client.get("/docs").headers["content-security-policy"]  # Swagger UI's own CDN
+    docs = client.get("/docs")  # Swagger UI served by the app: no CDN, no inline script
+    assert "cdn.jsdelivr.net" not in docs.headers["content-security-policy"] and "/static/swagger-ui/" in docs.text
+    assert "'unsafe-inline'" not in docs.headers["content-security-policy"].split("script-src")[1].split(";")[0]
 
 
 # ---------------------------------------------------------------- 5. failure reasons, counts, the next query

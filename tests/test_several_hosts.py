@@ -30,6 +30,7 @@ from test_postgres import postgres_url  # noqa: F401  (the module's own PostgreS
 import app.store.store as store_module
 import learner.testing_envs as testing_envs
 from app.migrate import upgrade
+from app.settings import Settings
 from app.store import RunStatus, Store
 from learner.checkpoint import checkpoint_url, load_checkpoint, save_checkpoint
 from learner.envs import encode_png
@@ -302,3 +303,29 @@ def test_labellers_answering_different_queries_at_once_on_postgresql_all_succeed
     assert [a.answer_seq for a in answers] == list(range(1, 121))
     assert sorted(a.query_id for a in answers) == ids
     store.dispose()
+
+
+def test_the_policy_export_and_run_deletion_reach_checkpoints_in_s3(s3_env: dict[str, str], tmp_path: Path) -> None:
+    """With RAQ_CHECKPOINT_URL in a bucket, GET /api/runs/{id}/policy streams the policy from there and DELETE
+    /api/runs/{id} removes the run's folder there (the server needs no shared file system either)."""
+    import s3fs
+    from fastapi.testclient import TestClient
+
+    from app.main import create_app
+
+    url = f"sqlite:///{tmp_path / 'raq.sqlite3'}"
+    upgrade(url)
+    store = Store(url)
+    run_id = store.create_run(env_id="VisualPusher-v0", algorithm="sparse", config={}).id
+    store.dispose()
+    base = f"s3://{BUCKET}/exports"
+    save_checkpoint(f"{base}/run-{run_id}/policy.pt", {"marker": torch.arange(5)})
+    fs = s3fs.S3FileSystem()
+    uploaded = fs.cat(f"{BUCKET}/exports/run-{run_id}/policy.pt")
+    settings = Settings(data_dir=tmp_path, database_url=url, checkpoint_url=base)
+    with TestClient(create_app(settings)) as client:
+        response = client.get(f"/api/runs/{run_id}/policy")
+        assert response.status_code == 200 and response.content == uploaded
+        assert client.delete(f"/api/runs/{run_id}").status_code == 204
+    fs.invalidate_cache()
+    assert not fs.exists(f"{BUCKET}/exports/run-{run_id}")

@@ -22,11 +22,13 @@ from app.deps import (
     secret_hash,
     token_fingerprint,
 )
-from app.routers.runs import run_detail, run_out
+from app.routers.compare import COMPARE_METRICS
+from app.routers.runs import list_run_outs, run_detail, run_out
 from app.schemas import GoalExampleOut, GoalSetOut
 from app.store import INT32_MAX, NotFound, QueryStatus
 from learner.algorithms import ALGORITHM_SPECS
 from learner.config import TrainConfig
+from learner.envs import SIM_ENV_IDS, known_env_ids
 
 TEMPLATES_DIR = Path(__file__).resolve().parent.parent.parent / "templates"
 templates = Jinja2Templates(directory=TEMPLATES_DIR)
@@ -78,9 +80,10 @@ def _not_found(request: Request, settings: Any, store: Any, message: str):
 
 
 @router.get("/", response_class=HTMLResponse)
-def runs_page(request: Request, settings: SettingsDep, store: StoreDep):
-    runs = [run_out(store, run).model_dump(mode="json") for run in store.list_runs()]
-    return _page(request, "runs.html", settings, store, runs=runs, title="Runs")
+def runs_page(request: Request, settings: SettingsDep, store: StoreDep, archived: bool = False):
+    runs = [run.model_dump(mode="json") for run in list_run_outs(store, archived=archived)]
+    title = "Archived runs" if archived else "Runs"
+    return _page(request, "runs.html", settings, store, runs=runs, title=title, archived=archived)
 
 
 @router.get("/runs/new", response_class=HTMLResponse)
@@ -94,6 +97,8 @@ def new_run_page(request: Request, settings: SettingsDep, store: StoreDep, goal_
         store,
         title="New run",
         tasks=available_tasks(),
+        env_ids=[env_id for env_id in known_env_ids() if env_id not in SIM_ENV_IDS],
+        env_modules=list(settings.env_modules),
         algorithms=[(name, spec.label) for name, spec in ALGORITHM_SPECS.items()],
         goal_sets=goal_sets,
         selected_goal_set=goal_set,
@@ -149,7 +154,31 @@ def goal_set_page(goal_set_id: GoalSetId, request: Request, settings: SettingsDe
         goal_set=GoalSetOut.of(goal_set, len(examples)),
         examples=examples,
         max_upload_bytes=settings.max_upload_bytes,
+        tasks=available_tasks(),
     )
+
+
+@router.get("/compare", response_class=HTMLResponse)
+def compare_page(
+    request: Request,
+    settings: SettingsDep,
+    store: StoreDep,
+    runs: Annotated[str, Query(max_length=600)] = "",
+    metric: Annotated[str, Query(max_length=100)] = "eval/success_rate",
+):
+    run_ids = [int(part) for part in runs.split(",") if part.strip().isdigit() and 1 <= int(part) <= INT32_MAX]
+    for run_id in run_ids:
+        try:
+            store.get_run(run_id=run_id)
+        except NotFound as error:
+            return _not_found(request, settings, store, str(error))
+    if not run_ids:
+        return _not_found(request, settings, store, "choose runs to compare on the runs page")
+    metric = metric if metric in COMPARE_METRICS else "eval/success_rate"
+    return _page(
+        request, "compare.html", settings, store, title="Compare runs", run_ids=run_ids, metric=metric,
+        metrics=COMPARE_METRICS,
+    )  # fmt: skip
 
 
 @router.get("/queue", response_class=HTMLResponse)

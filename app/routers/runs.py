@@ -1,15 +1,19 @@
-"""Runs: create (validated with TrainConfig), list, read, stop, resume, and the latest rollout animation."""
+"""Runs: create (validated with TrainConfig), list, read, change priority / archive, delete, stop, resume, and the
+latest rollout animation."""
 
-from typing import Any
+import contextlib
+import shutil
+from typing import Annotated, Any
 
 import pydantic
-from fastapi import APIRouter, HTTPException, Response, status
+from fastapi import APIRouter, HTTPException, Query, Response, status
 
 from app.deps import ReadAuth, RunId, SettingsDep, StoreDep, WriteAuth
-from app.schemas import WRITE_ERRORS, RolloutOut, RunCreate, RunDetail, RunOut, errors
+from app.schemas import WRITE_ERRORS, RolloutOut, RunCreate, RunDetail, RunOut, RunUpdate, SweepCreate, errors
 from app.settings import Settings
 from app.store import NotFound, Run, Store
 from learner.algorithms import ALGORITHM_SPECS
+from learner.checkpoint_location import is_remote, run_folder
 from learner.config import TrainConfig, host_cuda_devices, host_memory_bytes
 from learner.envs import env_id_problem
 
@@ -19,13 +23,17 @@ TOP_LEVEL_FIELDS = ("env_id", "algorithm", "seed")
 _config_adapter = pydantic.TypeAdapter(TrainConfig)
 
 
-def run_out(store: Store, run: Run) -> RunOut:
+def run_out(store: Store, run: Run, waiting: dict[int, str] | None = None) -> RunOut:
+    if waiting is None and run.status == "queued":
+        waiting = store.queue_report()
     return RunOut.of(
         run,
         queries=store.query_counts(run_id=run.id),
         success_rate=store.latest_metric(run_id=run.id, name="eval/success_rate"),
         steps_per_second=store.latest_metric(run_id=run.id, name="perf/steps_per_second"),
         eta_seconds=store.latest_metric(run_id=run.id, name="perf/eta_seconds"),
+        waiting_reason=(waiting or {}).get(run.id),
+        asks_queries=bool(getattr(ALGORITHM_SPECS.get(run.algorithm), "queries", False)),
     )
 
 
@@ -120,13 +128,86 @@ def create_run(body: RunCreate, store: StoreDep, settings: SettingsDep, _auth: W
         goal_set_id=body.goal_set_id,
         total_steps=config.total_steps,
         name=body.name.strip(),
+        priority=body.priority,
     )
     return run_detail(store, run)
 
 
+@router.post(
+    "/sweep", status_code=status.HTTP_201_CREATED, response_model=list[RunOut], responses=errors(*WRITE_ERRORS)
+)
+def create_sweep(body: SweepCreate, store: StoreDep, settings: SettingsDep, _auth: WriteAuth) -> list[RunOut]:
+    """Start methods × seeds in one action: every combination is checked first (422 names the first bad one and
+    nothing is created), then one run each, named "<name> · <algorithm> · seed <n>"."""
+    algorithms, seeds = list(dict.fromkeys(body.algorithms)), list(dict.fromkeys(body.seeds))
+    checked = []
+    for algorithm in algorithms:
+        for seed in seeds:
+            single = RunCreate(
+                env_id=body.env_id, algorithm=algorithm, seed=seed, goal_set_id=body.goal_set_id,
+                priority=body.priority, config=body.config,
+            )  # fmt: skip
+            config = validate_run_config(single, settings)
+            check_goal_set(store, algorithm=config.algorithm, goal_set_id=body.goal_set_id)
+            checked.append(config)
+    prefix = body.name.strip() or f"sweep {body.env_id}"
+    runs = [
+        store.create_run(
+            env_id=config.env_id,
+            algorithm=config.algorithm,
+            config=config.to_dict(),
+            seed=config.seed,
+            goal_set_id=body.goal_set_id,
+            total_steps=config.total_steps,
+            priority=body.priority,
+            name=f"{prefix} · {config.algorithm} · seed {config.seed}"[:200],
+        )  # fmt: skip
+        for config in checked
+    ]
+    waiting = store.queue_report()
+    return [run_out(store, run, waiting) for run in runs]
+
+
 @router.get("", response_model=list[RunOut])
-def list_runs(store: StoreDep, _auth: ReadAuth) -> list[RunOut]:
-    return [run_out(store, run) for run in store.list_runs()]
+def list_runs(
+    store: StoreDep,
+    _auth: ReadAuth,
+    archived: Annotated[
+        bool | None, Query(description="false (default): leave archived runs out; true: only them; omit with all=true")
+    ] = False,
+    all_runs: Annotated[bool, Query(alias="all", description="every run, archived or not")] = False,
+) -> list[RunOut]:
+    return list_run_outs(store, archived=None if all_runs else archived)
+
+
+def list_run_outs(store: Store, *, archived: bool | None = False) -> list[RunOut]:
+    waiting = store.queue_report()
+    return [run_out(store, run, waiting) for run in store.list_runs(archived=archived)]
+
+
+@router.patch("/{run_id}", response_model=RunDetail, responses=errors(404, 409, *WRITE_ERRORS))
+def update_run(run_id: RunId, body: RunUpdate, store: StoreDep, _auth: WriteAuth) -> RunDetail:
+    """Change the priority (any time: a queued run moves in the queue, a running one yields at its next checkpoint
+    when a higher-priority run waits) or archive a run that is not queued or running (409)."""
+    return run_detail(store, store.update_run(run_id=run_id, priority=body.priority, archived=body.archived))
+
+
+@router.delete("/{run_id}", status_code=status.HTTP_204_NO_CONTENT, responses=errors(404, 409, *WRITE_ERRORS))
+def delete_run(run_id: RunId, store: StoreDep, settings: SettingsDep, _auth: WriteAuth) -> Response:
+    """Delete a run with everything it owns: queries (with their images), metrics, events, rollouts and its
+    checkpoint files. A run a learner holds (starting, training) must be stopped first (409)."""
+    store.delete_run(run_id=run_id)
+    # the run's checkpoint folder (learner/checkpoint_location.py: <RAQ_CHECKPOINT_URL>/run-<id>/)
+    folder = run_folder(settings.resolved_checkpoint_url, run_id)
+    if not is_remote(folder):
+        shutil.rmtree(folder, ignore_errors=True)
+    else:
+        import fsspec  # checkpoints in object storage (pip install '.[objectstore]')
+
+        fs, key = fsspec.core.url_to_fs(folder)
+        with contextlib.suppress(FileNotFoundError):
+            fs.rm(key, recursive=True)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
 @router.get("/{run_id}", response_model=RunDetail, responses=errors(404))

@@ -12,6 +12,7 @@ from app.store.models import (
     QueryStatus,
     Rollout,
     Run,
+    RunPhase,
     RunStatus,
 )
 from app.store.store import AnsweredQuery, GoalImage, Store, seconds_since
@@ -32,6 +33,7 @@ __all__ = [
     "QueryStatus",
     "Rollout",
     "Run",
+    "RunPhase",
     "RunStatus",
     "Store",
     "StoreError",

@@ -21,6 +21,7 @@ from sqlalchemy import (
     Text,
     TypeDecorator,
 )
+from sqlalchemy import false as sa_false
 from sqlalchemy.orm import DeclarativeBase, Mapped, deferred, mapped_column
 
 
@@ -64,6 +65,16 @@ class RunStatus:
     FAILED = "failed"
     ACTIVE = (STARTING, TRAINING)
     ALL = (QUEUED, STARTING, TRAINING, STOPPED, FINISHED, FAILED)
+
+
+class RunPhase:
+    """What the learner of an active run is doing now (sent with its heartbeats; shown on the pages)."""
+
+    SETTING_UP = "setting up"
+    WARM_UP = "warm-up"
+    TRAINING = "training"
+    EVALUATING = "evaluating"
+    ALL = (SETTING_UP, WARM_UP, TRAINING, EVALUATING)
 
 
 class QueryStatus:
@@ -111,6 +122,15 @@ class Run(Base):
     status: Mapped[str] = mapped_column(String(20), default=RunStatus.QUEUED, index=True)
     status_reason: Mapped[str] = mapped_column(Text, default="")
     stop_requested: Mapped[bool] = mapped_column(Boolean, default=False)
+    # Learners take the queued run of the highest priority first (then the oldest); a run a person starts has 0,
+    # the demo -10. A lower-priority run yields to a higher-priority one that waits, at its next checkpoint.
+    priority: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    # When the run was last queued (created, resumed, requeued): how long a queued run has waited.
+    queued_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    # Archived runs are hidden from the runs page (unless asked for) and never claimed.
+    archived: Mapped[bool] = mapped_column(Boolean, default=False, server_default=sa_false())
+    # RunPhase of an active run, as its learner last said (None before a learner took it)
+    phase: Mapped[str | None] = mapped_column(String(30))
     worker: Mapped[str | None] = mapped_column(String(200))
     heartbeat_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
     step: Mapped[int] = mapped_column(BigInteger, default=0)

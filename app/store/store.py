@@ -25,6 +25,7 @@ from app.store.models import (
     QueryStatus,
     Rollout,
     Run,
+    RunPhase,
     RunStatus,
     utcnow,
 )
@@ -52,6 +53,8 @@ class AnsweredQuery:
 
 # PostgreSQL advisory lock key (any constant) under which an answer takes the next answer_seq.
 ANSWER_SEQ_LOCK = 0x52_41_51_01
+# The order learners take queued runs in: highest priority first, then the oldest.
+_CLAIM_ORDER = (Run.priority.desc(), Run.id)
 
 
 class _LostRace(Exception):
@@ -195,6 +198,7 @@ class Store(Database):
         goal_set_id: int | None = None,
         total_steps: int = 0,
         name: str = "",
+        priority: int = 0,
     ) -> Run:
         with self.writing() as session:
             if goal_set_id is not None and session.get(GoalSet, goal_set_id) is None:
@@ -208,6 +212,8 @@ class Store(Database):
                 goal_set_id=goal_set_id,
                 total_steps=total_steps,
                 status=RunStatus.QUEUED,
+                priority=priority,
+                queued_at=utcnow(),
             )
             session.add(run)
             session.flush()
@@ -221,9 +227,101 @@ class Store(Database):
                 raise NotFound(f"run {run_id} not found")
             return run
 
-    def list_runs(self) -> list[Run]:
+    def list_runs(self, *, archived: bool | None = None) -> list[Run]:
+        """Newest first; archived=False leaves archived runs out, True lists only them, None all."""
+        statement = select(Run)
+        if archived is not None:
+            statement = statement.where(Run.archived.is_(archived))
         with self.reading() as session:
-            return list(session.scalars(select(Run).order_by(Run.id.desc())))
+            return list(session.scalars(statement.order_by(Run.id.desc())))
+
+    def update_run(self, *, run_id: int, priority: int | None = None, archived: bool | None = None) -> Run:
+        """Change a run's priority (any time) or archive it (only when no learner holds it or may take it)."""
+
+        def change(run: Run) -> tuple[dict[str, Any], str]:
+            values: dict[str, Any] = {}
+            notes = []
+            if priority is not None and priority != run.priority:
+                values["priority"] = priority
+                notes.append(f"priority {run.priority} -> {priority}")
+            if archived is not None and archived != run.archived:
+                if archived and run.status in (RunStatus.QUEUED, *RunStatus.ACTIVE):
+                    raise Conflict(f"run {run.id} is {run.status}; stop it before archiving it")
+                values["archived"] = archived
+                notes.append("archived" if archived else "unarchived")
+            return values, ", ".join(notes)
+
+        return self._change_run(run_id=run_id, change=change)
+
+    def delete_run(self, *, run_id: int) -> None:
+        """Delete a run with its queries, metrics, events and rollouts (not while a learner holds it)."""
+        with self.writing() as session:
+            run = session.get(Run, run_id)
+            if run is None:
+                raise NotFound(f"run {run_id} not found")
+            if run.status in RunStatus.ACTIVE:
+                raise Conflict(f"run {run_id} is {run.status}; stop it before deleting it")
+            for model in (Query, Metric, Event, Rollout):  # explicit: PostgreSQL and SQLite alike, no FK reliance
+                session.execute(delete(model).where(model.run_id == run_id))
+            deleted = session.execute(delete(Run).where(Run.id == run_id, Run.status.not_in(RunStatus.ACTIVE))).rowcount
+            if not deleted:
+                raise Conflict(f"run {run_id} was taken by a learner meanwhile; stop it before deleting it")
+
+    def queue_report(self) -> dict[int, str]:
+        """Why each queued run waits, in the order learners will take them: the busy learners' runs and the queued
+        runs ahead of it ("learner busy with #1; after #4"), or that no learner is running."""
+        stale_before = self._db_now(minus_seconds=60)  # the database's clock, as the claim judges staleness
+        with self.reading() as session:
+            queued = (
+                session.execute(
+                    select(Run.id)
+                    .where(Run.status == RunStatus.QUEUED, Run.archived.is_(False))
+                    .order_by(*_CLAIM_ORDER)
+                )
+                .scalars()
+                .all()
+            )
+            if not queued:
+                return {}
+            busy = (
+                session.execute(
+                    select(Run.id)
+                    .where(Run.status.in_(RunStatus.ACTIVE), Run.heartbeat_at >= stale_before)
+                    .order_by(Run.id)
+                )
+                .scalars()
+                .all()
+            )
+        reasons = {}
+        for position, run_id in enumerate(queued):
+            if busy:
+                text = "learner busy with " + ", ".join(f"#{other}" for other in busy)
+            else:
+                text = "waiting for a learner (none is running: start one with raq learn or raq up)"
+            ahead = queued[:position]
+            if ahead:
+                text += "; after " + ", ".join(f"#{other}" for other in ahead[:5]) + (" …" if len(ahead) > 5 else "")
+            reasons[run_id] = text
+        return reasons
+
+    def higher_priority_waiting(self, *, run_id: int, waited_seconds: float = 10.0) -> Run | None:
+        """A queued run of higher priority than `run_id` that has waited at least `waited_seconds` (an idle
+        learner, polling every 2 s, would have taken it by then), or None."""
+        with self.reading() as session:
+            priority = session.scalar(select(Run.priority).where(Run.id == run_id))
+            if priority is None:
+                return None
+            return session.scalars(
+                select(Run)
+                .where(
+                    Run.status == RunStatus.QUEUED,
+                    Run.archived.is_(False),
+                    Run.priority > priority,
+                    Run.queued_at <= utcnow() - timedelta(seconds=waited_seconds),
+                )
+                .order_by(*_CLAIM_ORDER)
+                .limit(1)
+            ).first()
 
     def count_runs(self) -> int:
         with self.reading() as session:
@@ -238,12 +336,12 @@ class Store(Database):
         the same row, exactly one changes it.
         """
         claimable = or_(
-            Run.status == RunStatus.QUEUED,
+            (Run.status == RunStatus.QUEUED) & Run.archived.is_(False),
             (Run.status.in_(RunStatus.ACTIVE)) & (Run.heartbeat_at < self._db_now(minus_seconds=stale_after_seconds)),
         )
         with self.writing() as session:
             candidates = session.execute(
-                select(Run.id, Run.status, Run.heartbeat_at).where(claimable).order_by(Run.id).limit(5)
+                select(Run.id, Run.status, Run.heartbeat_at).where(claimable).order_by(*_CLAIM_ORDER).limit(5)
             ).all()
             for run_id, status, heartbeat_at in candidates:
                 now = self._db_now()
@@ -253,6 +351,7 @@ class Store(Database):
                     .values(
                         status=RunStatus.STARTING,
                         status_reason="",
+                        phase=RunPhase.SETTING_UP,
                         worker=worker,
                         heartbeat_at=now,
                         started_at=func.coalesce(Run.started_at, now),
@@ -275,10 +374,14 @@ class Store(Database):
             return func.now() - timedelta(seconds=minus_seconds)
         return func.now()
 
-    def heartbeat(self, *, run_id: int, worker: str, step: int | None = None, status: str | None = None) -> bool:
-        """Record that `worker` is alive on the run. Returns False when it should stop (stop asked,
-        or the run was taken from it)."""
+    def heartbeat(
+        self, *, run_id: int, worker: str, step: int | None = None, status: str | None = None, phase: str | None = None
+    ) -> bool:
+        """Record that `worker` is alive on the run (and, with `phase`, what it is doing). Returns False when it
+        should stop (stop asked, or the run was taken from it)."""
         values: dict[str, Any] = {"heartbeat_at": self._db_now()}
+        if phase is not None:
+            values["phase"] = phase
         if step is not None:
             values["step"] = step
         if status is not None:
@@ -298,6 +401,10 @@ class Store(Database):
         if status not in RunStatus.ALL:
             raise InvalidInput(f"unknown run status {status!r}")
         values: dict[str, Any] = {"status": status, "status_reason": reason[:2000]}
+        if status == RunStatus.QUEUED:
+            values["queued_at"] = utcnow()
+        if status not in RunStatus.ACTIVE:
+            values["phase"] = None
         if status in (RunStatus.FINISHED, RunStatus.FAILED, RunStatus.STOPPED):
             values["finished_at"] = utcnow()
             values["stop_requested"] = False
@@ -331,7 +438,10 @@ class Store(Database):
     def _resume_change(run: Run) -> tuple[dict[str, Any], str]:
         if run.status not in (RunStatus.STOPPED, RunStatus.FAILED):
             raise Conflict(f"run {run.id} is {run.status}; only stopped or failed runs can be resumed")
-        values = {"status": RunStatus.QUEUED, "status_reason": "", "stop_requested": False, "finished_at": None}
+        values = {
+            "status": RunStatus.QUEUED, "status_reason": "", "stop_requested": False, "finished_at": None,
+            "queued_at": utcnow(), "archived": False,
+        }  # fmt: skip
         return values, "resume requested: queued"
 
     def _change_run(self, *, run_id: int, change: Any) -> Run:
@@ -342,6 +452,8 @@ class Store(Database):
                 if run is None:
                     raise NotFound(f"run {run_id} not found")
                 values, message = change(run)
+                if not values:
+                    return run
                 changed = session.execute(
                     update(Run)
                     .where(Run.id == run_id, Run.status == run.status)
@@ -490,6 +602,8 @@ class Store(Database):
                 status=QueryStatus.ANSWERED, answer=success, labeler=labeler[:200] or None, answered_at=utcnow(),
                 answer_seq=next_seq,
             )  # fmt: skip
+            message = f"query {query_id} answered {'yes' if success else 'no'}" + (f" by {labeler}" if labeler else "")
+            session.add(Event(run_id=query.run_id, message=message[:1000]))
             return query
 
     def skip_query(self, *, query_id: int, labeler: str = "") -> Query:
@@ -507,6 +621,7 @@ class Store(Database):
                     )  # fmt: skip
                 except _LostRace:
                     continue
+                session.add(Event(run_id=query.run_id, message=f"query {query_id} skipped"))
                 return query
         raise Conflict(f"query {query_id} changed while skipping it; try again")
 

@@ -1,0 +1,90 @@
+"""Envs: the ids a run may name (the known ones, for the New run form's suggestions) and a first-frame preview of
+one (the observation as the model sees it and the display render), made with gymnasium in this process (no torch)
+and only for an env id the allowlist permits (RAQ_ENV_MODULES, see README Security)."""
+
+import threading
+from functools import lru_cache
+from typing import Annotated, Literal
+from urllib.parse import urlencode
+
+from fastapi import APIRouter, HTTPException, Query, Response
+from pydantic import BaseModel
+
+from app.deps import ReadAuth, SettingsDep
+from app.schemas import errors
+from learner.envs import SIM_ENV_IDS, env_id_problem, first_frames, known_env_ids
+
+router = APIRouter(prefix="/api/envs", tags=["envs"], responses=errors(401))
+_preview_lock = threading.Lock()  # one env made at a time: rendering contexts are not free
+
+
+class EnvsOut(BaseModel):
+    simulated: list[str]
+    registered: list[str]
+    allowed_modules: list[str]
+
+
+class EnvPreviewOut(BaseModel):
+    env_id: str
+    observation_url: str
+    display_url: str
+    description: str
+
+
+@router.get("", response_model=EnvsOut)
+def list_envs(settings: SettingsDep, _auth: ReadAuth) -> EnvsOut:
+    """The simulated tasks, every registered Gymnasium id, and the modules runs may name as `module:EnvId`."""
+    return EnvsOut(simulated=list(SIM_ENV_IDS), registered=known_env_ids(), allowed_modules=list(settings.env_modules))
+
+
+@lru_cache(maxsize=32)
+def _frames(env_id: str, image_size: int, display_size: int) -> tuple[bytes, bytes, str]:
+    with _preview_lock:
+        return first_frames(env_id, image_size=image_size, display_size=display_size)
+
+
+EnvIdQuery = Annotated[str, Query(min_length=1, max_length=200, description="A registered id or module:EnvId.")]
+SizeQuery = Annotated[int, Query(ge=8, le=512, description="The model's image size.")]
+
+
+def _env_error(message: str) -> HTTPException:
+    return HTTPException(status_code=422, detail=[{"loc": ["query", "env_id"], "msg": message, "type": "value_error"}])
+
+
+def _checked_frames(env_id: str, size: int, settings: SettingsDep) -> tuple[bytes, bytes, str]:
+    problem = env_id_problem(env_id, allowed_modules=settings.env_modules)
+    if problem:
+        raise _env_error(problem)
+    try:
+        return _frames(env_id, size, 256)
+    except Exception as error:  # noqa: BLE001 - any failure of the env itself is the user's answer, not a 500
+        message = f"cannot make or reset {env_id!r}: {type(error).__name__}: {error}".splitlines()[0][:500]
+        raise _env_error(message) from None
+
+
+@router.get("/preview", response_model=EnvPreviewOut)
+def preview(env_id: EnvIdQuery, settings: SettingsDep, _auth: ReadAuth, size: SizeQuery = 48) -> EnvPreviewOut:
+    """Make the env, reset it with seed 0 and describe it; the two images are at the URLs given (422 when the id
+    is not allowed or the env cannot be made)."""
+    _image, _display, description = _checked_frames(env_id, size, settings)
+    base = "/api/envs/preview/image?" + urlencode({"env_id": env_id, "size": size})
+    return EnvPreviewOut(
+        env_id=env_id, observation_url=base + "&kind=observation", display_url=base + "&kind=display",
+        description=description,
+    )  # fmt: skip
+
+
+@router.get(
+    "/preview/image",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}}, "description": "The first frame."}},
+)
+def preview_image(
+    env_id: EnvIdQuery,
+    settings: SettingsDep,
+    _auth: ReadAuth,
+    size: SizeQuery = 48,
+    kind: Literal["observation", "display"] = "observation",
+) -> Response:
+    image, display, _description = _checked_frames(env_id, size, settings)
+    return Response(content=image if kind == "observation" else display, media_type="image/png")
