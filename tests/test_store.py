@@ -4,6 +4,7 @@ import multiprocessing as mp
 from pathlib import Path
 
 import pytest
+import sqlalchemy as sa
 from sqlalchemy import inspect, text
 
 from app.migrate import downgrade, upgrade
@@ -161,6 +162,53 @@ def test_migrations_upgrade_a_fresh_database_and_downgrade_back(tmp_path: Path) 
     assert set(inspect(store.engine).get_table_names()) <= {"alembic_version"}
     store.dispose()
     upgrade(url)  # and up again
+
+
+def test_migrating_a_database_with_runs_keeps_every_answer_metric_and_event(tmp_path: Path) -> None:
+    """Each migration up from 0001 and back down keeps what the runs own (a batch 'move and copy' of the runs
+    table dropped it through the foreign keys' ON DELETE CASCADE: every query, answer and metric was lost)."""
+    url = f"sqlite:///{tmp_path / 'old.sqlite3'}"
+    upgrade(url, "0001")
+    engine = sa.create_engine(url)
+    with engine.begin() as connection:
+        connection.execute(sa.text("PRAGMA foreign_keys=ON"))
+        connection.execute(sa.text(
+            "INSERT INTO runs (id, name, env_id, algorithm, config, seed, status, status_reason, stop_requested, "
+            "step, total_steps, created_at) VALUES (1, 'r', 'VisualPusher-v0', 'vice_raq', '{}', 0, 'stopped', '', 0, "
+            "500, 1000, '2026-01-01 00:00:00.000000')"
+        ))  # fmt: skip
+        connection.execute(sa.text(
+            "INSERT INTO queries (run_id, env_step, model_png, display_png, score, strategy, info, status, answer, "
+            "created_at) VALUES (1, 100, x'00', x'00', 1.5, 'argmax', '{}', 'answered', 1, "
+            "'2026-01-01 00:00:00.000000')"
+        ))  # fmt: skip
+        connection.execute(sa.text(
+            "INSERT INTO metrics (run_id, step, name, value, created_at) VALUES (1, 100, 'eval/return', 1, "
+            "'2026-01-01 00:00:00.000000')"
+        ))  # fmt: skip
+        connection.execute(sa.text(
+            "INSERT INTO events (run_id, level, message, created_at) VALUES (1, 'info', 'e', "
+            "'2026-01-01 00:00:00.000000')"
+        ))  # fmt: skip
+    engine.dispose()
+
+    def owned() -> tuple[int, ...]:
+        with sa.create_engine(url).connect() as connection:
+            return tuple(
+                connection.execute(sa.text(f"SELECT count(*) FROM {table}")).scalar_one()
+                for table in ("runs", "queries", "metrics", "events")
+            )
+
+    assert owned() == (1, 1, 1, 1)
+    upgrade(url)
+    assert owned() == (1, 1, 1, 1)
+    store = Store(url)
+    assert store.get_query(query_id=1).answer is True and store.get_run(run_id=1).step == 500
+    store.dispose()
+    downgrade(url, "0001")
+    assert owned() == (1, 1, 1, 1)
+    upgrade(url)
+    assert owned() == (1, 1, 1, 1)
 
 
 # ---------------------------------------------------------------- several processes on one SQLite file

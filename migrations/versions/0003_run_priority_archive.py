@@ -16,17 +16,17 @@ branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 
 
+# Plain ALTER TABLE … ADD / DROP COLUMN, never a batch "move and copy": on SQLite that drops the old runs table,
+# and with foreign keys on the drop cascades to every query, answer, metric, event and rollout of every run.
+
+
 def upgrade() -> None:
-    with op.batch_alter_table("runs") as batch:
-        batch.add_column(sa.Column("priority", sa.Integer(), nullable=False, server_default="0"))
-        batch.add_column(sa.Column("queued_at", sa.DateTime(timezone=True), nullable=True))
-        batch.add_column(sa.Column("archived", sa.Boolean(), nullable=False, server_default=sa.false()))
-        batch.add_column(sa.Column("phase", sa.String(length=30), nullable=True))
+    op.add_column("runs", sa.Column("priority", sa.Integer(), nullable=False, server_default="0"))
+    op.add_column("runs", sa.Column("queued_at", sa.DateTime(timezone=True), nullable=True))
+    op.add_column("runs", sa.Column("archived", sa.Boolean(), nullable=False, server_default=sa.false()))
+    op.add_column("runs", sa.Column("phase", sa.String(length=30), nullable=True))
 
 
 def downgrade() -> None:
-    with op.batch_alter_table("runs") as batch:
-        batch.drop_column("phase")
-        batch.drop_column("archived")
-        batch.drop_column("queued_at")
-        batch.drop_column("priority")
+    for column in ("phase", "archived", "queued_at", "priority"):
+        op.drop_column("runs", column)
