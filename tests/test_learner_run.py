@@ -49,12 +49,8 @@ def tiny_config(**overrides: object) -> TrainConfig:
     return TrainConfig(**values)  # type: ignore[arg-type]
 
 
-@pytest.fixture
-def setup(tmp_path: Path) -> tuple[Settings, Store, int]:
-    url = f"sqlite:///{tmp_path / 'raq.sqlite3'}"
-    upgrade(url)
-    store = Store(url)
-    settings = Settings(data_dir=tmp_path, database_url=url, stale_heartbeat_seconds=60.0)
+def add_dot_goals(store: Store) -> int:
+    """A goal set of 4 DotReach goal images (16 px; display 32 px); returns its id."""
     goal_set = store.create_goal_set(name="dot", image_size=16)
     env = testing_envs.DotReach(obs_size=16, render_size=32)
     for i in range(4):
@@ -64,7 +60,16 @@ def setup(tmp_path: Path) -> tuple[Settings, Store, int]:
             goal_set_id=goal_set.id, filename=f"goal{i}.png", original=png, original_media_type="image/png",
             width=16, height=16, model_png=png, display_png=encode_png(env._draw(32)),
         )  # fmt: skip
-    yield settings, store, goal_set.id
+    return goal_set.id
+
+
+@pytest.fixture
+def setup(tmp_path: Path) -> tuple[Settings, Store, int]:
+    url = f"sqlite:///{tmp_path / 'raq.sqlite3'}"
+    upgrade(url)
+    store = Store(url)
+    settings = Settings(data_dir=tmp_path, database_url=url, stale_heartbeat_seconds=60.0)
+    yield settings, store, add_dot_goals(store)
     store.dispose()
 
 

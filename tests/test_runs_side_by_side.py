@@ -90,7 +90,6 @@ def test_learners_default_to_one_per_two_cores() -> None:
 def test_a_lower_priority_run_yields_at_its_next_checkpoint(tmp_path: Path) -> None:
     """A real learner trains the demo-like low-priority run; a person's run is queued and waits; at the next
     checkpoint the learner queues the low run again, trains the person's run, then resumes the low one."""
-    pytest.importorskip("torch")
     from app.migrate import upgrade
     from app.settings import Settings
     from learner.worker import work

@@ -19,21 +19,18 @@ from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 from conftest import free_port
 from sqlalchemy import create_engine, text
-from test_learner_run import tiny_config
+from test_learner_run import add_dot_goals, tiny_config
 from test_postgres import postgres_url  # noqa: F401  (the module's own PostgreSQL server)
 
 import app.store.store as store_module
-import learner.testing_envs as testing_envs
 from app.migrate import upgrade
 from app.settings import Settings
 from app.store import RunStatus, Store
 from learner.checkpoint import checkpoint_url, load_checkpoint, save_checkpoint
-from learner.envs import encode_png
 
 ROOT = Path(__file__).resolve().parent.parent
 BUCKET = "raq-checkpoints"
@@ -176,17 +173,6 @@ def test_a_host_with_a_skewed_clock_does_not_steal_a_live_run(
 
 
 # ---------------------------------------------------------------- two learners, two data dirs, one bucket
-def _add_goals(store: Store) -> int:
-    goal_set = store.create_goal_set(name="dot", image_size=16)
-    env = testing_envs.DotReach(obs_size=16, render_size=32)
-    for i in range(4):
-        env.position = testing_envs.TARGET + np.float32(0.05 * (i - 1.5))
-        png = encode_png(env._draw(16))
-        store.add_goal_example(
-            goal_set_id=goal_set.id, filename=f"goal{i}.png", original=png, original_media_type="image/png",
-            width=16, height=16, model_png=png, display_png=encode_png(env._draw(32)),
-        )  # fmt: skip
-    return goal_set.id
 
 
 def _learner(
@@ -221,7 +207,7 @@ def test_a_learner_on_another_host_resumes_a_killed_learners_run_from_s3(
     config = tiny_config(algorithm="vice_raq", total_steps=600, checkpoint_every=300, eval_every=600)
     run_id = store.create_run(
         env_id=config.env_id, algorithm=config.algorithm, config=config.to_dict(), seed=config.seed,
-        goal_set_id=_add_goals(store), total_steps=config.total_steps,
+        goal_set_id=add_dot_goals(store), total_steps=config.total_steps,
     ).id  # fmt: skip
     messages = lambda: [event.message for event in store.events(run_id=run_id, limit=1000)]  # noqa: E731
     first = _learner("host-a", tmp_path / "host-a", fresh_postgres, s3_env, stale=3.0, once=True)
