@@ -107,22 +107,15 @@ def prepare(url: str, learners: int, seed_queries: int) -> list[int]:
     """Goal set, one run per learner, `seed_queries` pending queries per run (with ground truth)."""
     upgrade(url)
     store = Store(url)
-    env = testing_envs.DotReach(obs_size=16, render_size=32)
-    goal_set = store.create_goal_set(name="load", image_size=16)
-    for i in range(4):
-        env.position = testing_envs.TARGET + np.float32(0.05 * (i - 1.5))
-        png = encode_png(env._draw(16))
-        store.add_goal_example(
-            goal_set_id=goal_set.id, filename=f"goal{i}.png", original=png, original_media_type="image/png",
-            width=16, height=16, model_png=png, display_png=encode_png(env._draw(32)),
-        )  # fmt: skip
+    goal_set_id = testing_envs.add_dot_goals(store, name="load")
+    env = testing_envs.DotReach(obs_size=16, render_size=32)  # draws the pending queries' images
     run_ids = []
     rng = np.random.default_rng(0)
     for i in range(learners):
         config = run_config(seed=i)
         run_ids.append(
             store.create_run(
-                env_id=ENV, algorithm="vice_raq", config=config.to_dict(), seed=i, goal_set_id=goal_set.id,
+                env_id=ENV, algorithm="vice_raq", config=config.to_dict(), seed=i, goal_set_id=goal_set_id,
                 total_steps=config.total_steps, name=f"load {i}",
             ).id
         )  # fmt: skip

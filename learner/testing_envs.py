@@ -63,5 +63,21 @@ class DotReach(gym.Env[np.ndarray, np.ndarray]):
         self.position = np.asarray(snapshot, dtype=np.float32).copy()
 
 
+def add_dot_goals(store: Any, name: str = "dot") -> int:
+    """A goal set of 4 DotReach goal images (16 px; display 32 px) in `store` (an app.store.Store); its id."""
+    from learner.envs import encode_png
+
+    goal_set = store.create_goal_set(name=name, image_size=16)
+    env = DotReach(obs_size=16, render_size=32)
+    for i in range(4):
+        env.position = TARGET + np.float32(0.05 * (i - 1.5))
+        png = encode_png(env._draw(16))
+        store.add_goal_example(
+            goal_set_id=goal_set.id, filename=f"goal{i}.png", original=png, original_media_type="image/png",
+            width=16, height=16, model_png=png, display_png=encode_png(env._draw(32)),
+        )  # fmt: skip
+    return goal_set.id
+
+
 if "DotReach-v0" not in gym.registry:
     gym.register(id="DotReach-v0", entry_point="learner.testing_envs:DotReach", max_episode_steps=50)

@@ -16,7 +16,6 @@ import pytest
 import torch
 from PIL import Image
 
-import learner.testing_envs as testing_envs
 from app.migrate import upgrade
 from app.settings import Settings
 from app.store import RunStatus, Store
@@ -24,6 +23,7 @@ from learner.checkpoint import checkpoint_path, load_checkpoint
 from learner.config import TrainConfig
 from learner.envs import decode_image, encode_png
 from learner.reward import RewardModel
+from learner.testing_envs import add_dot_goals
 from learner.train import Outcome, Trainer
 from learner.worker import work
 
@@ -47,20 +47,6 @@ def tiny_config(**overrides: object) -> TrainConfig:
     )  # fmt: skip
     values.update(overrides)
     return TrainConfig(**values)  # type: ignore[arg-type]
-
-
-def add_dot_goals(store: Store) -> int:
-    """A goal set of 4 DotReach goal images (16 px; display 32 px); returns its id."""
-    goal_set = store.create_goal_set(name="dot", image_size=16)
-    env = testing_envs.DotReach(obs_size=16, render_size=32)
-    for i in range(4):
-        env.position = testing_envs.TARGET + np.float32(0.05 * (i - 1.5))
-        png = encode_png(env._draw(16))
-        store.add_goal_example(
-            goal_set_id=goal_set.id, filename=f"goal{i}.png", original=png, original_media_type="image/png",
-            width=16, height=16, model_png=png, display_png=encode_png(env._draw(32)),
-        )  # fmt: skip
-    return goal_set.id
 
 
 @pytest.fixture

@@ -23,7 +23,7 @@ import pytest
 import torch
 from conftest import free_port
 from sqlalchemy import create_engine, text
-from test_learner_run import add_dot_goals, tiny_config
+from test_learner_run import tiny_config
 from test_postgres import postgres_url  # noqa: F401  (the module's own PostgreSQL server)
 
 import app.store.store as store_module
@@ -31,6 +31,7 @@ from app.migrate import upgrade
 from app.settings import Settings
 from app.store import RunStatus, Store
 from learner.checkpoint import checkpoint_url, load_checkpoint, save_checkpoint
+from learner.testing_envs import add_dot_goals
 
 ROOT = Path(__file__).resolve().parent.parent
 BUCKET = "raq-checkpoints"

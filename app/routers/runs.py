@@ -120,17 +120,16 @@ def check_goal_set(store: Store, *, algorithm: str, goal_set_id: int | None) -> 
 def create_run(body: RunCreate, store: StoreDep, settings: SettingsDep, _auth: WriteAuth) -> RunDetail:
     config = validate_run_config(body, settings)
     check_goal_set(store, algorithm=config.algorithm, goal_set_id=body.goal_set_id)
-    run = store.create_run(
-        env_id=config.env_id,
-        algorithm=config.algorithm,
-        config=config.to_dict(),
-        seed=config.seed,
-        goal_set_id=body.goal_set_id,
-        total_steps=config.total_steps,
-        name=body.name.strip(),
-        priority=body.priority,
-    )
+    run = _create(store, config, goal_set_id=body.goal_set_id, priority=body.priority, name=body.name.strip())
     return run_detail(store, run)
+
+
+def _create(store: Store, config: TrainConfig, *, goal_set_id: int | None, priority: int, name: str) -> Run:
+    """A queued run of a checked config; its own columns (env, algorithm, seed, steps) from the config."""
+    return store.create_run(
+        env_id=config.env_id, algorithm=config.algorithm, config=config.to_dict(), seed=config.seed,
+        goal_set_id=goal_set_id, total_steps=config.total_steps, name=name, priority=priority,
+    )  # fmt: skip
 
 
 @router.post(
@@ -152,14 +151,8 @@ def create_sweep(body: SweepCreate, store: StoreDep, settings: SettingsDep, _aut
             checked.append(config)
     prefix = body.name.strip() or f"sweep {body.env_id}"
     runs = [
-        store.create_run(
-            env_id=config.env_id,
-            algorithm=config.algorithm,
-            config=config.to_dict(),
-            seed=config.seed,
-            goal_set_id=body.goal_set_id,
-            total_steps=config.total_steps,
-            priority=body.priority,
+        _create(
+            store, config, goal_set_id=body.goal_set_id, priority=body.priority,
             name=f"{prefix} · {config.algorithm} · seed {config.seed}"[:200],
         )  # fmt: skip
         for config in checked
