@@ -114,6 +114,9 @@ class TrainConfig:
     """Autocast dtype of every network (SAC and f_psi); bf16 also hands them bf16 images; auto: bf16 where faster."""
     device: str = "cpu"
     """Torch device: "cpu", "cuda" or "cuda:N", a GPU this host has."""
+    replay_pipeline: Literal["auto", "host", "device"] = "auto"
+    """Where replay batches are sampled, shifted and rewarded: host (numpy, cached f_psi rewards) or device (a
+    copy of the replay on `device`, f_psi(s') in each update, CUDA graphs on a GPU); auto: device on a GPU."""
 
     # --- reward classifier f_psi
     classifier_lr: float = 3e-4

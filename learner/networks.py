@@ -74,9 +74,10 @@ def input_dtype(precision: str, device: torch.device) -> torch.dtype:
 
 
 def precision_autocast(precision: str, device: torch.device) -> AbstractContextManager[Any]:
-    """bf16 autocast on `device` under bf16 precision, else a disabled one."""
+    """bf16 autocast on `device` under bf16 precision, else a disabled one. On a GPU without autocast's cache of
+    cast weights, which CUDA graph capture does not allow."""
     enabled = resolve_precision(precision, device.type) == "bf16"
-    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=enabled)
+    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=enabled, cache_enabled=device.type != "cuda")
 
 
 def mlp(in_dim: int, hidden_dim: int, out_dim: int) -> nn.Sequential:

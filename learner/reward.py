@@ -28,14 +28,20 @@ Policy = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 
 
 def mixup(
-    images: torch.Tensor, labels: torch.Tensor, alpha: float, rng: np.random.Generator
+    images: torch.Tensor, labels: torch.Tensor, alpha: float, rng: np.random.Generator | None
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """x~ = lam x_i + (1 - lam) x_perm(i), y~ likewise, lam ~ Beta(alpha, alpha) per sample."""
+    """x~ = lam x_i + (1 - lam) x_perm(i), y~ likewise, lam ~ Beta(alpha, alpha) per sample. Drawn from `rng`, or
+    with rng=None from torch's generator on the images' device (no host values: a CUDA graph can hold it)."""
     if alpha <= 0:
         return images, labels
-    count = images.shape[0]
-    lam = torch.from_numpy(rng.beta(alpha, alpha, size=count).astype(np.float32)).to(images.device)
-    perm = torch.from_numpy(rng.permutation(count)).to(images.device)
+    count, device = images.shape[0], images.device
+    if rng is not None:
+        lam = torch.from_numpy(rng.beta(alpha, alpha, size=count).astype(np.float32)).to(device)
+        perm = torch.from_numpy(rng.permutation(count)).to(device)
+    else:  # Beta(a, a) as G1 / (G1 + G2), G ~ Gamma(a, 1); a permutation as the order of uniform keys
+        gammas = torch._standard_gamma(torch.full((2, count), float(alpha), device=device))
+        lam = gammas[0] / gammas.sum(0)
+        perm = torch.argsort(torch.rand(count, device=device))
     lam = lam.to(images.dtype)  # bf16 images: the labels mix with the same (rounded) lambda
     mixed_images = torch.lerp(images[perm], images, lam.view(-1, 1, 1, 1))
     mixed_labels = torch.lerp(labels[perm], labels, lam.to(labels.dtype))
@@ -55,7 +61,9 @@ class RewardModel:
         self.device = torch.device(config.device)
         self.net = RewardClassifier(config.image_size, config.conv_filters, config.hidden_dim, config.encoder)
         self.net.to(self.device, memory_format=torch.channels_last)
-        self.opt = torch.optim.Adam(self.net.parameters(), lr=config.classifier_lr)
+        self.opt = torch.optim.Adam(
+            self.net.parameters(), lr=config.classifier_lr, capturable=self.device.type == "cuda"
+        )  # (capturable: its step counts on the device, so a step can be a CUDA graph)
         self.airl = ALGORITHM_SPECS[config.algorithm].airl
         shape = (0, config.image_size, config.image_size, 3)
         self.goals = np.zeros(shape, dtype=np.uint8)
@@ -93,6 +101,11 @@ class RewardModel:
         with self.autocast():
             out = [self.net(self.images(images[i : i + chunk])) for i in range(0, len(images), chunk)]
         return torch.cat(out).cpu().numpy() if out else np.zeros(0, dtype=np.float32)
+
+    def logits_on_device(self, images: torch.Tensor) -> torch.Tensor:
+        """f_psi (fp32 logits) of uint8 NHWC images already on the device, without gradients or a host sync."""
+        with torch.no_grad(), self.autocast():
+            return self.net(self.images(images))
 
     def rewards(self, replay: ReplayBuffer, indices: np.ndarray) -> np.ndarray:
         """r = f_psi(s') for replay transitions, with the current classifier (cached per version, exact)."""
@@ -135,19 +148,31 @@ class RewardModel:
         discriminator of Eq. D at any input.) Without mixup this is exactly Alg. 2 lines 9-12.
         """
         images = self.images(np.concatenate([positives, negatives]))
-        labels = torch.cat([torch.ones(len(positives)), torch.zeros(len(negatives))]).to(self.device)
-        mixed_images, mixed_labels = mixup(images, labels, self.config.mixup_alpha, self.rng)
+        loss = self._step(images, len(positives), policy, self.rng)
+        self.version += 1
+        metrics = {"reward/loss": loss.item()}
+        if accuracy:
+            metrics.update(self._accuracy(images, len(positives), policy))
+        return metrics
+
+    def step_on_device(self, positives: torch.Tensor, negatives: torch.Tensor, policy: Policy | None) -> torch.Tensor:
+        """`update_classifier` on uint8 NHWC device tensors, mixup drawn on the device: no host sync, so a CUDA
+        graph can hold it (the graph's replays do not run Python: the caller counts `version`). Returns the loss."""
+        return self._step(self.images(torch.cat([positives, negatives])), len(positives), policy, None)
+
+    def _step(
+        self, images: torch.Tensor, n_positive: int, policy: Policy | None, rng: np.random.Generator | None
+    ) -> torch.Tensor:
+        labels = torch.zeros(len(images), device=self.device)
+        labels[:n_positive] = 1.0
+        mixed_images, mixed_labels = mixup(images, labels, self.config.mixup_alpha, rng)
         with self.autocast():
             logits, _, _ = self.discriminator_logits(mixed_images, policy)
         loss = F.binary_cross_entropy_with_logits(logits, mixed_labels)
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
         self.opt.step()
-        self.version += 1
-        metrics = {"reward/loss": loss.item()}
-        if accuracy:
-            metrics.update(self._accuracy(images, len(positives), policy))
-        return metrics
+        return loss.detach()
 
     @torch.no_grad()
     def _accuracy(self, images: torch.Tensor, n_positive: int, policy: Policy | None) -> dict[str, float]:

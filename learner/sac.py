@@ -56,12 +56,15 @@ class SACAgent:
         self.log_alpha = torch.tensor(math.log(config.initial_alpha), device=self.device, requires_grad=True)
         self.target_entropy = float(config.target_entropy if config.target_entropy is not None else -action_dim)
         fused = self.device.type in ("cpu", "cuda")
+        capturable = self.device.type == "cuda"  # step counts on the device: an update can be a CUDA graph
         critic_params = list(self.critic.parameters())
         if self.encoder is not None:
             critic_params += list(self.encoder.parameters())
-        self.critic_opt = torch.optim.Adam(critic_params, lr=config.critic_lr, fused=fused)
-        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=fused)
-        self.alpha_opt = torch.optim.Adam([self.log_alpha], lr=config.alpha_lr)
+        self.critic_opt = torch.optim.Adam(critic_params, lr=config.critic_lr, fused=fused, capturable=capturable)
+        self.actor_opt = torch.optim.Adam(
+            self.actor.parameters(), lr=config.actor_lr, fused=fused, capturable=capturable
+        )
+        self.alpha_opt = torch.optim.Adam([self.log_alpha], lr=config.alpha_lr, capturable=capturable)
 
     # ------------------------------------------------------------------ helpers
     def modules(self) -> dict[str, torch.nn.Module]:
@@ -114,6 +117,14 @@ class SACAgent:
         not_done: torch.Tensor,
     ) -> dict[str, float]:  # fmt: skip
         """One SAC gradient step on float image batches (already augmented); returns metrics."""
+        metrics = self.update_tensors(obs, action, reward, next_obs, not_done)
+        return {name: value.item() for name, value in metrics.items()}
+
+    def update_tensors(
+        self, obs: torch.Tensor, action: torch.Tensor, reward: torch.Tensor, next_obs: torch.Tensor,
+        not_done: torch.Tensor,
+    ) -> dict[str, torch.Tensor]:  # fmt: skip
+        """`update` with its metrics left as 0-d tensors on the device: no host sync, so it can be a CUDA graph."""
         metrics, actor_inputs = self.update_critic(obs, action, reward, next_obs, not_done)
         metrics.update(self.update_actor_and_alpha(actor_inputs))
         self.update_target()
@@ -122,7 +133,7 @@ class SACAgent:
     def update_critic(
         self, obs: torch.Tensor, action: torch.Tensor, reward: torch.Tensor, next_obs: torch.Tensor,
         not_done: torch.Tensor,
-    ) -> tuple[dict[str, float], torch.Tensor]:  # fmt: skip
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:  # fmt: skip
         """Soft Bellman residual on both Q's; returns metrics and the actor's inputs (detached features or images)."""
         with torch.no_grad(), self.autocast():
             next_inputs = self._features(next_obs)
@@ -140,14 +151,14 @@ class SACAgent:
         critic_loss.backward()
         self.critic_opt.step()
         metrics = {
-            "critic/loss": critic_loss.item(),
-            "critic/q_mean": q1.detach().mean().item(),
-            "critic/target_mean": target.mean().item(),
+            "critic/loss": critic_loss.detach(),
+            "critic/q_mean": q1.detach().mean(),
+            "critic/target_mean": target.mean(),
         }
         actor_inputs = inputs.detach() if self.encoder is not None else obs
         return metrics, actor_inputs
 
-    def update_actor_and_alpha(self, inputs: torch.Tensor) -> dict[str, float]:
+    def update_actor_and_alpha(self, inputs: torch.Tensor) -> dict[str, torch.Tensor]:
         """Reparameterised policy step on alpha log pi(a|s) - min_j Q_j(s, a), then the temperature step."""
         self.critic.requires_grad_(False)  # the actor loss must not leave gradients on the critic
         try:
@@ -167,10 +178,10 @@ class SACAgent:
         alpha_loss.backward()
         self.alpha_opt.step()
         return {
-            "actor/loss": actor_loss.item(),
-            "actor/entropy": -log_pi.detach().mean().item(),
-            "alpha/loss": alpha_loss.item(),
-            "alpha/value": self.alpha.item(),
+            "actor/loss": actor_loss.detach(),
+            "actor/entropy": -log_pi.detach().mean(),
+            "alpha/loss": alpha_loss.detach(),
+            "alpha/value": self.alpha,
         }
 
     @torch.no_grad()

@@ -15,7 +15,6 @@ import io
 import json
 import threading
 import time
-from collections import defaultdict
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -43,10 +42,11 @@ from learner.envs import (
 from learner.evaluation import Evaluator
 from learner.networks import resolve_precision
 from learner.query_channel import QueryChannel
-from learner.replay import ReplayBuffer, shift_pad
+from learner.replay import ReplayBuffer
 from learner.reward import RewardModel
 from learner.run_control import Counters, Outcome, RunControl
 from learner.sac import SACAgent
+from learner.updates import make_updates
 
 __all__ = ["Outcome", "Trainer", "config_for_run", "train_run"]
 CHECKPOINT_VERSION = 1
@@ -105,19 +105,19 @@ class Trainer:
                 config, store=store, run_id=run_id, reward_model=self.reward_model, counters=self.counters,
                 control=self.control,
             )  # fmt: skip
+        self.updates = make_updates(
+            config, agent=self.agent, replay=self.replay, reward_model=self.reward_model, spec=self.spec, rng=self.rng
+        )  # fmt: skip
         self.evaluator = Evaluator(
             config, env=self.eval_env, agent=self.agent, reward_model=self.reward_model, store=store, run_id=run_id,
             control=self.control,
         )  # fmt: skip
-        self.pad = shift_pad(size) if config.augmentation == "random_shift" else 0
         self.obs = np.zeros((size, size, 3), dtype=np.uint8)
         self.obs_slot = 0
         self.episode_len = 0
         self.episode_return = 0.0
         self.finished_returns: list[float] = []
         self.finished_successes: list[float | None] = []
-        self.update_sums: dict[str, float] = defaultdict(float)
-        self.update_count = 0
         self.log_time, self.log_step, self.log_updates = time.monotonic(), 0, 0
 
     # ================================================================== the loop
@@ -173,6 +173,7 @@ class Trainer:
         control.event(
             f"learner {control.worker} setting up: {cfg.algorithm} on {cfg.env_id}, {cfg.total_steps} steps, "
             f"precision {precision}" + (" (auto: the faster on this machine)" if cfg.precision == "auto" else "")
+            + f"; {self.updates.describe()}"
         )
         stored_step = int(self.store.get_run(run_id=self.run_id).step or 0)
         # each setup phase can take long (a large checkpoint): beat after each so no one reclaims the run
@@ -299,21 +300,10 @@ class Trainer:
 
     # ================================================================== SAC
     def _sac_updates(self) -> None:
+        """Alg. 2 lines 13-16, updates_per_step times (the batches: `learner.updates`, on the host or the device)."""
         for _ in range(self.config.updates_per_step):
-            batch = self.replay.sample(self.rng, self.config.batch_size, self.pad)
-            rewards = self._rewards(batch.indices)
-            metrics = self.agent.update_from_arrays(batch.obs, batch.action, rewards, batch.next_obs, batch.not_done)
-            metrics["reward/batch_mean"] = float(rewards.mean())
-            for name, value in metrics.items():
-                self.update_sums[name] += value
-            self.update_count += 1
+            self.updates.sac_update()
             self.counters.total_updates += 1
-
-    def _rewards(self, indices: np.ndarray) -> np.ndarray:
-        """Alg. 2 line 15, with the current classifier: r = f_psi(s'); sparse: the env's success(s')."""
-        if self.reward_model is None:
-            return self.replay.success[indices].astype(np.float32)
-        return self.reward_model.rewards(self.replay, indices)
 
     # ================================================================== reward classifier
     def _end_of_epoch(self) -> None:
@@ -346,20 +336,14 @@ class Trainer:
 
     def _train_classifier(self, steps: int) -> bool:
         """`steps` classifier steps (Alg. 2 lines 9-11); False when an interrupt cut them short."""
-        model, cfg = self.reward_model, self.config
+        model = self.reward_model
         assert model is not None
-        policy = self.agent.policy if self.spec.airl else None
         metrics: dict[str, float] = {}
         for i in range(steps):
             if self.control.interrupted:
                 return False
-            positives = model.sample_positives(cfg.classifier_batch_size)
-            if self.spec.negatives == "replay":  # uniform replay samples
-                negatives = self.replay.sample_next_frames(self.rng, cfg.classifier_batch_size)
-            else:
-                negatives = model.sample_negatives(cfg.classifier_batch_size)
             # the accuracies (a second forward pass) only for the step whose metrics are recorded
-            metrics = model.update_classifier(positives, negatives, policy, accuracy=i == steps - 1)
+            metrics = self.updates.classifier_step(accuracy=i == steps - 1)
             if i % 50 == 49:
                 self.control.tick()
         if not metrics:
@@ -391,8 +375,9 @@ class Trainer:
         now, step, counters = time.monotonic(), self.counters.step, self.counters
         elapsed = max(now - self.log_time, 1e-9)
         steps_per_second = (step - self.log_step) / elapsed
-        count = max(self.update_count, 1)
-        values = {name: total / count for name, total in self.update_sums.items()}
+        values = self.updates.take_metrics()
+        for note in self.updates.take_notes():
+            self.control.event(note, level="warning")
         if self.finished_returns:
             values["train/episode_return"] = float(np.mean(self.finished_returns))
             if all(s is not None for s in self.finished_successes):
@@ -409,8 +394,6 @@ class Trainer:
             values["perf/training_steps_per_second"] = training_speed
             values["perf/eta_seconds"] = remaining / training_speed
         self.store.record_metrics(run_id=self.run_id, step=step, values=values)
-        self.update_sums.clear()
-        self.update_count = 0
         self.finished_returns.clear()
         self.finished_successes.clear()
         self.log_time, self.log_step, self.log_updates = now, step, counters.total_updates

@@ -117,18 +117,26 @@ def test_vice_raq_run_end_to_end_with_answers_arriving(setup: tuple[Settings, St
 
 
 @pytest.mark.parametrize(
-    ("algorithm", "env_id", "success_metric"),
+    ("algorithm", "env_id", "success_metric", "pipeline"),
     [
-        ("vice", ENV, True),
-        ("raq", ENV, True),
-        ("naive_classifier", ENV, True),
-        ("sparse", ENV, True),
-        ("vice_raq", "DotReachNoSuccess-v0", False),  # bring your own env: 20 px obs, no success flag
+        ("vice", ENV, True, "host"),
+        ("raq", ENV, True, "host"),
+        ("naive_classifier", ENV, True, "host"),
+        ("sparse", ENV, True, "host"),
+        ("vice_raq", "DotReachNoSuccess-v0", False, "host"),  # bring your own env: 20 px obs, no success flag
+        # the GPU path's code (replay, sampling, rewards and classifier steps on the device), eagerly on the CPU
+        ("vice_raq", ENV, True, "device"),
+        ("raq", ENV, True, "device"),
+        ("sparse", ENV, True, "device"),
     ],
 )
-def test_every_algorithm_runs(setup: tuple[Settings, Store, int], algorithm: str, env_id: str, success_metric: bool):
+def test_every_algorithm_runs(
+    setup: tuple[Settings, Store, int], algorithm: str, env_id: str, success_metric: bool, pipeline: str
+) -> None:
     settings, store, goal_set_id = setup
-    config = tiny_config(algorithm=algorithm, env_id=env_id, total_steps=150, checkpoint_every=1000)
+    config = tiny_config(
+        algorithm=algorithm, env_id=env_id, total_steps=150, checkpoint_every=1000, replay_pipeline=pipeline
+    )
     run_id = create_run(store, None if algorithm == "sparse" else goal_set_id, config)
     assert work(settings, worker_name="w", once=True) == 0
     run = store.get_run(run_id=run_id)
@@ -139,6 +147,8 @@ def test_every_algorithm_runs(setup: tuple[Settings, Store, int], algorithm: str
     queries = store.list_queries(run_id=run_id)
     assert (len(queries) > 0) == (algorithm in ("vice_raq", "raq"))
     assert all(q.ground_truth_success is None for q in queries) or success_metric
+    setup_event = next(e.message for e in store.events(run_id=run_id, limit=1000) if "setting up" in e.message)
+    assert ("replay sampled on cpu" in setup_event) == (pipeline == "device"), setup_event
 
 
 def test_failed_run_reports_the_reason(setup: tuple[Settings, Store, int]) -> None:
