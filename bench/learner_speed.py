@@ -9,6 +9,11 @@ cache stale and fills it as the loop does (at the default 300 updates over 20,00
 f_psi evaluations per update; the loop does 50 per update with 50K transitions, 92 with 100K).
 Environment stepping is not included.
 
+On a GPU it also measures the device pipeline (`replay_pipeline="device"`, learner/updates.py): replay on the
+GPU, sampling, shift and rewards f_psi(s') inside the update, the update and the classifier step replayed as CUDA
+graphs, eagerly and as graphs; the graphed updates run under `torch.cuda.set_sync_debug_mode("error")`, so a host
+sync inside an update would stop the benchmark.
+
     python bench/learner_speed.py [--updates 300] [--blocks 2] [--device cpu|cuda] [--threads N]
 """
 
@@ -23,11 +28,13 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from learner.algorithms import ALGORITHM_SPECS  # noqa: E402
 from learner.config import TrainConfig  # noqa: E402
 from learner.networks import resolve_precision  # noqa: E402
 from learner.replay import ReplayBuffer, shift_pad  # noqa: E402
 from learner.reward import RewardModel  # noqa: E402
 from learner.sac import SACAgent  # noqa: E402
+from learner.updates import GRAPH_WARMUP_CALLS, DeviceUpdates  # noqa: E402
 
 
 def filled_replay(config: TrainConfig, transitions: int, rng: np.random.Generator) -> ReplayBuffer:
@@ -124,6 +131,46 @@ def measure(config: TrainConfig, updates: int, transitions: int, blocks: int) ->
     return best, best_parts
 
 
+def measure_device_pipeline(
+    config: TrainConfig, updates: int, transitions: int, blocks: int, graphs: bool
+) -> tuple[float, str]:
+    """(updates per second, how it ran) of the device pipeline: as the loop does it, a classifier burst (all but
+    its last step as graphs) then `updates` SAC updates; `graphs=False` runs the same functions eagerly."""
+    rng = np.random.default_rng(0)
+    torch.manual_seed(0)
+    agent = SACAgent(config, action_dim=2)
+    reward_model = RewardModel(config, rng)
+    reward_model.goals = rng.integers(0, 256, size=(10, config.image_size, config.image_size, 3), dtype=np.uint8)
+    replay = filled_replay(config, transitions, rng)
+    pipeline = DeviceUpdates(
+        config, agent=agent, replay=replay, reward_model=reward_model, spec=ALGORITHM_SPECS[config.algorithm], rng=rng
+    )  # fmt: skip
+    if not graphs:
+        pipeline.sac_graph.failure = pipeline.classifier_graph.failure = "eager on purpose (benchmark)"
+    per_block = max(1, round(config.classifier_steps * updates / (config.epoch_steps * config.updates_per_step)))
+    for _ in range(GRAPH_WARMUP_CALLS + 2):  # warm-up, capture and a first replay of both graphs
+        pipeline.classifier_step(accuracy=False)
+        pipeline.sac_update()
+    pipeline.take_metrics()
+    torch.cuda.synchronize()
+    best = 0.0
+    for _block in range(blocks):
+        start = time.perf_counter()
+        for index in range(per_block):
+            pipeline.classifier_step(accuracy=index == per_block - 1)
+        torch.cuda.set_sync_debug_mode("error" if graphs else 0)  # a host sync in an update raises
+        try:
+            for _ in range(updates):
+                pipeline.sac_update()
+        finally:
+            torch.cuda.set_sync_debug_mode(0)
+        torch.cuda.synchronize()
+        best = max(best, updates / (time.perf_counter() - start))
+    metrics = pipeline.take_metrics()
+    assert all(np.isfinite(value) for value in metrics.values()), metrics
+    return best, pipeline.describe()
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--updates", type=int, default=300, help="updates per timed block (see --blocks)")
@@ -151,6 +198,13 @@ def main() -> int:
         if parts:
             print("         ms per update: " + ", ".join(f"{part} {ms:.1f}" for part, ms in parts.items()), flush=True)
     print(f"ratio default/paper: {results['default'] / results['paper']:.2f}x")
+    if args.device.startswith("cuda"):
+        for precision in ("fp32", "bf16"):
+            config = TrainConfig(device=args.device, precision=precision, replay_pipeline="device")
+            for graphs in (False, True):
+                rate, how = measure_device_pipeline(config, args.updates, args.transitions, args.blocks, graphs)
+                label = f"device pipeline, {precision}, {'CUDA graphs' if graphs else 'eager'}"
+                print(f"{label:40s} updates/s {rate:7.1f}   ({how})", flush=True)
     print(machine_line())
     return 0
 

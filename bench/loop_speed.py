@@ -14,6 +14,10 @@ machine's state:
 
 The last line reads `loop: E env steps/s end to end, U updates/s update-bound, ratio R`. Before it, the loop's
 time outside the updates is split by part (ms per env step).
+
+With `--device cuda` the updates are asynchronous (CUDA graphs on the device pipeline), so the time spent in them
+is not their cost: U is then measured after the loop, on the run's own replay, networks and graphs, as updates
+per second of the update alone with the GPU synchronised at both ends.
 """
 
 from __future__ import annotations
@@ -78,22 +82,34 @@ def answer_everything(store: Store, run_id: int, done: threading.Event) -> None:
             store.answer_query(query_id=query.id, success=bool(query.ground_truth_success), labeler="bench")
 
 
+def cuda_update_rate(trainer: Trainer, count: int) -> float:
+    """Updates per second of `count` of the run's own updates with the GPU synchronised before and after."""
+    torch.cuda.synchronize()
+    start = time.perf_counter()
+    for _ in range(count):
+        trainer.updates.sac_update()
+    torch.cuda.synchronize()
+    return count / (time.perf_counter() - start)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=3000, help="env steps timed after the warm-up")
     parser.add_argument("--task", choices=sorted(TASKS), default="pusher")
     parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
     parser.add_argument("--query-every", type=int, default=1000, help="a query every this many env steps")
+    parser.add_argument("--device", default="cpu", help="the learner's torch device (cpu, cuda)")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     config = TrainConfig(
         env_id=TASKS[args.task], total_steps=WARM_UP + args.steps, query_every=args.query_every,
-        query_budget=1000, checkpoint_every=10**9,
+        query_budget=1000, checkpoint_every=10**9, device=args.device,
     )  # fmt: skip
     print(
         f"torch {torch.__version__}, {torch.get_num_threads()} threads, {config.env_id}, default config, "
-        f"precision {config.precision} -> {resolve_precision(config.precision)}; {args.steps} env steps timed",
+        f"precision {config.precision} -> {resolve_precision(config.precision, torch.device(args.device).type)}; "
+        f"{args.steps} env steps timed on {args.device}",
         flush=True,
     )
     with tempfile.TemporaryDirectory() as tmp:
@@ -131,9 +147,13 @@ def main() -> int:
         done = threading.Event()
         labeller = threading.Thread(target=answer_everything, args=(store, run.id, done), daemon=True)
         labeller.start()
+        update_rate = 0.0
         try:
             trainer.train()
             elapsed = time.perf_counter() - started[0]
+            print(f"updates: {trainer.updates.describe()}")
+            if trainer.agent.device.type == "cuda":
+                update_rate = cuda_update_rate(trainer, count=min(args.steps, 1000))
         finally:
             done.set()
             labeller.join()
@@ -141,7 +161,8 @@ def main() -> int:
             store.dispose()
     steps = args.steps
     update_seconds = timer.seconds["SAC updates"]
-    e, u = steps / elapsed, steps * config.updates_per_step / update_seconds
+    e = steps / elapsed
+    u = update_rate if args.device.startswith("cuda") else steps * config.updates_per_step / update_seconds
     print("ms per env step: " + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.seconds.items()))
     other = elapsed - sum(timer.seconds.values())
     print(f"ms per env step outside the timed parts (replay, bookkeeping, heartbeats): {1000 * other / steps:.1f}")

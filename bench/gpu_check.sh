@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# The GPU check, for a lent CUDA machine with no network (../shared/gpu/fetch-wheels.sh put the wheels in .whl/
+# and the EGL packages in .gl/; carry both). Writes what it measured under $OUT.
+#
+#   bash bench/gpu_check.sh speed            learner_speed and loop_speed on cuda (about 3 minutes)
+#   bash bench/gpu_check.sh learn MINUTES    learning runs side by side on the GPU for MINUTES: VICE-RAQ on the
+#                                            pusher (stops at 90%), the door and the picker, settings as README
+set -u
+phase=${1:-speed}
+minutes=${2:-6}
+OUT=${OUT:-/tmp/gpu-check}
+mkdir -p "$OUT"
+python3 -m pip install -q --no-index --no-deps --no-compile --target "$HOME/site" .whl/*.whl || exit 1
+export PYTHONPATH="$HOME/site:$PWD"
+for f in .gl/*.deb; do dpkg -x "$f" /; done
+ldconfig
+export MUJOCO_GL=egl PYOPENGL_PLATFORM=egl PYTHONUNBUFFERED=1
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$OUT/machine.txt"
+python3 -c "import torch; print('torch', torch.__version__, 'cuda', torch.version.cuda)" | tee -a "$OUT/machine.txt"
+nproc | tee -a "$OUT/machine.txt"
+
+if [ "$phase" = speed ]; then
+  timeout 240 python3 bench/learner_speed.py --device cuda --updates 500 --blocks 2 2>&1 | tee "$OUT/learner_speed.txt"
+  timeout 150 python3 bench/loop_speed.py --device cuda --steps 3000 2>&1 | tee "$OUT/loop_speed.txt"
+  exit 0
+fi
+
+# learn: three runs side by side, each stopped after MINUTES (the pusher at its first 90% evaluation)
+runs=bench/out/gpu
+mkdir -p "$runs"
+device=${DEVICE:-cuda}  # (DEVICE=cpu with replay_pipeline=device tries the whole phase on a machine without a GPU)
+common=(--seed 0 --max-minutes "$minutes")
+python3 bench/learn.py --task pusher --algorithm vice_raq "${common[@]}" --total-steps 100000 \
+  --stop-at-success 0.9 --set device="$device" replay_pipeline=device \
+  --out "$runs/pusher-vice_raq-seed0" > "$OUT/pusher.txt" 2>&1 &
+python3 bench/learn.py --task door --algorithm vice_raq "${common[@]}" --total-steps 200000 --query-every 10000 \
+  --query-budget 20 --set device="$device" replay_pipeline=device classifier_steps=10 \
+  --out "$runs/door-vice_raq-seed0" > "$OUT/door.txt" 2>&1 &
+python3 bench/learn.py --task picker --algorithm vice_raq "${common[@]}" --total-steps 300000 --query-every 1000 \
+  --query-budget 300 --set device="$device" replay_pipeline=device \
+  --out "$runs/picker-vice_raq-seed0" > "$OUT/picker.txt" 2>&1 &
+wait
+for run in "$runs"/*/; do
+  tail -n 40 "$run/learn.log" > "$run/learn-tail.log" 2>/dev/null
+done
+tar czf "$OUT/runs.tar.gz" "$runs"/*/curve.csv "$runs"/*/curve.png "$runs"/*/summary.json "$runs"/*/learn-tail.log
+tail -n 3 "$OUT"/pusher.txt "$OUT"/door.txt "$OUT"/picker.txt
