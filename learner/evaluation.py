@@ -1,9 +1,16 @@
-"""Evaluation: `eval_episodes` deterministic episodes of the current policy on an env of its own.
+"""Evaluation: `eval_episodes` deterministic episodes of the current policy on envs of its own.
+
+The episodes run in lockstep, up to EVAL_LOCKSTEP at once on as many envs, so the policy acts on all of them in
+one batch (one forward pass per env step instead of one per episode and step: a fifth of the network calls at
+the default 5 episodes). Each episode keeps its own reset seed, so the episodes are those a one-after-another
+evaluation runs (up to float rounding in the batched forward pass).
 
 eval/return is the env's own reward summed; with a classifier, eval/classifier_return sums f_psi(s');
 eval/success_rate is the success of each episode's final state (the paper's measure). The first episode is
 recorded as the run page's rollout. An interrupt stops an evaluation without recording anything.
 """
+
+from dataclasses import dataclass, field
 
 import gymnasium
 import numpy as np
@@ -15,34 +22,56 @@ from learner.reward import RewardModel
 from learner.run_control import RunControl
 from learner.sac import SACAgent
 
+EVAL_LOCKSTEP = 8
+"""Evaluation episodes run together (each on its own env); more episodes run in groups of this many."""
+
+
+def eval_env_count(config: TrainConfig) -> int:
+    """How many envs an evaluation needs: one per episode run in lockstep (at least one)."""
+    return max(1, min(config.eval_episodes, EVAL_LOCKSTEP))
+
+
+@dataclass
+class Episode:
+    """One evaluation episode as it runs: its env's last observation, reward sum, f_psi inputs and frames."""
+
+    obs: np.ndarray
+    success: float | None
+    frames: list[np.ndarray] = field(default_factory=list)
+    next_obs: list[np.ndarray] = field(default_factory=list)
+    total: float = 0.0
+    done: bool = False
+
 
 class Evaluator:
-    """Runs and records evaluations of `agent` on `env` (not the training env)."""
+    """Runs and records evaluations of `agent` on `envs` (not the training env), in lockstep."""
 
     def __init__(
-        self, config: TrainConfig, *, env: gymnasium.Env, agent: SACAgent, reward_model: RewardModel | None,
+        self, config: TrainConfig, *, envs: list[gymnasium.Env], agent: SACAgent, reward_model: RewardModel | None,
         store: Store, run_id: int, control: RunControl,
     ) -> None:  # fmt: skip
-        self.config, self.env, self.agent, self.reward_model = config, env, agent, reward_model
+        self.config, self.envs, self.agent, self.reward_model = config, envs, agent, reward_model
         self.store, self.run_id, self.control = store, run_id, control
-        self.action_space = check_action_space(env)
+        self.action_space = check_action_space(envs[0])
 
     def evaluate(self, step: int) -> bool:
         """Evaluate at env step `step` and record it; False when an interrupt cut it short (nothing recorded)."""
         cfg = self.config
         if cfg.eval_episodes == 0:
             return True
-        returns, classifier_returns, successes, frames = [], [], [], []
-        for episode in range(cfg.eval_episodes):
-            total, next_frames, success, episode_frames = self._episode(step, episode, record=episode == 0)
+        episodes: list[Episode] = []
+        for first in range(0, cfg.eval_episodes, len(self.envs)):
+            count = min(len(self.envs), cfg.eval_episodes - first)
+            episodes += self._episodes(step, first, count)
             if self.control.interrupted:
                 return False
-            returns.append(total)
-            successes.append(success)
-            frames = frames or episode_frames
-            if self.reward_model is not None:
-                classifier_returns.append(float(self.reward_model.logits(np.stack(next_frames)).sum()))
             self.control.tick()
+        returns = [episode.total for episode in episodes]
+        successes = [episode.success for episode in episodes]
+        frames = episodes[0].frames
+        classifier_returns = []
+        if self.reward_model is not None:
+            classifier_returns = [float(self.reward_model.logits(np.stack(e.next_obs)).sum()) for e in episodes]
         values = {"eval/return": float(np.mean(returns))}
         if classifier_returns:
             values["eval/classifier_return"] = float(np.mean(classifier_returns))
@@ -58,23 +87,30 @@ class Evaluator:
         self.control.event(f"evaluation at step {step}: return {values['eval/return']:.2f}{rate}")
         return True
 
-    def _episode(self, step: int, episode: int, record: bool) -> tuple[float, list[np.ndarray], float | None, list]:
+    def _episodes(self, step: int, first: int, count: int) -> list[Episode]:
+        """Episodes first .. first + count - 1 on as many envs, acting on all that are running in one batch."""
         cfg = self.config
-        raw, info = self.env.reset(seed=cfg.seed * 100_003 + 1_000_000 + step + episode)
-        obs = model_image(raw, cfg.image_size)
-        frames = [display_image(self.env, cfg.rollout_size, obs)] if record else []
-        total, next_frames, success = 0.0, [], success_of(info)
-        for _ in range(cfg.episode_steps):
-            if self.control.interrupted:
-                break
-            action = self.agent.act(obs, deterministic=True)
-            raw, reward, terminated, truncated, info = self.env.step(scale_action(action, self.action_space))
+        episodes = []
+        for index, env in enumerate(self.envs[:count]):
+            raw, info = env.reset(seed=cfg.seed * 100_003 + 1_000_000 + step + first + index)
             obs = model_image(raw, cfg.image_size)
-            total += float(reward)
-            next_frames.append(obs)
-            success = success_of(info)
-            if record:
-                frames.append(display_image(self.env, cfg.rollout_size, obs))
-            if terminated or truncated:
+            episode = Episode(obs=obs, success=success_of(info))
+            if first + index == 0:  # the recorded rollout
+                episode.frames.append(display_image(env, cfg.rollout_size, obs))
+            episodes.append(episode)
+        for _ in range(cfg.episode_steps):
+            running = [index for index, episode in enumerate(episodes) if not episode.done]
+            if not running or self.control.interrupted:
                 break
-        return total, next_frames, success, frames
+            actions = self.agent.act_batch(np.stack([episodes[index].obs for index in running]), deterministic=True)
+            for index, action in zip(running, actions, strict=True):
+                env, episode = self.envs[index], episodes[index]
+                raw, reward, terminated, truncated, info = env.step(scale_action(action, self.action_space))
+                episode.obs = model_image(raw, cfg.image_size)
+                episode.total += float(reward)
+                episode.next_obs.append(episode.obs)
+                episode.success = success_of(info)
+                if first + index == 0:
+                    episode.frames.append(display_image(env, cfg.rollout_size, episode.obs))
+                episode.done = bool(terminated or truncated)
+        return episodes

@@ -98,8 +98,12 @@ class SACAgent:
 
     def act(self, observation: np.ndarray, deterministic: bool = False) -> np.ndarray:
         """One uint8 HWC observation -> an action in [-1, 1]^dim(A)."""
-        action, _ = self.policy(self.images(observation[None]), deterministic)
-        return action[0].cpu().numpy()
+        return self.act_batch(observation[None], deterministic)[0]
+
+    def act_batch(self, observations: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        """uint8 NHWC observations -> one action each, from one forward pass."""
+        action, _ = self.policy(self.images(observations), deterministic)
+        return action.float().cpu().numpy()
 
     # ------------------------------------------------------------------ updates
     def update_from_arrays(

@@ -39,7 +39,7 @@ from learner.envs import (
     snapshot_of,
     success_of,
 )
-from learner.evaluation import Evaluator
+from learner.evaluation import Evaluator, eval_env_count
 from learner.networks import resolve_precision
 from learner.query_channel import QueryChannel
 from learner.replay import ReplayBuffer
@@ -93,7 +93,10 @@ class Trainer:
         self.rng = np.random.default_rng(config.seed)
         size = config.image_size
         self.env = make_env(config.env_id, image_size=size, display_size=config.display_size)
-        self.eval_env = make_env(config.env_id, image_size=size, display_size=config.display_size)
+        self.eval_envs = [
+            make_env(config.env_id, image_size=size, display_size=config.display_size)
+            for _ in range(eval_env_count(config))
+        ]
         self.action_space = check_action_space(self.env)
         self.action_dim = int(self.action_space.shape[0])
         self.agent = SACAgent(config, self.action_dim)
@@ -109,7 +112,7 @@ class Trainer:
             config, agent=self.agent, replay=self.replay, reward_model=self.reward_model, spec=self.spec, rng=self.rng
         )  # fmt: skip
         self.evaluator = Evaluator(
-            config, env=self.eval_env, agent=self.agent, reward_model=self.reward_model, store=store, run_id=run_id,
+            config, envs=self.eval_envs, agent=self.agent, reward_model=self.reward_model, store=store, run_id=run_id,
             control=self.control,
         )  # fmt: skip
         self.obs = np.zeros((size, size, 3), dtype=np.uint8)
@@ -172,7 +175,8 @@ class Trainer:
         precision = resolve_precision(cfg.precision, self.agent.device.type)
         control.event(
             f"learner {control.worker} setting up: {cfg.algorithm} on {cfg.env_id}, {cfg.total_steps} steps, "
-            f"precision {precision}" + (" (auto: the faster on this machine)" if cfg.precision == "auto" else "")
+            f"precision {precision}"
+            + (" (auto: the faster on this machine)" if cfg.precision == "auto" else "")
             + f"; {self.updates.describe()}"
         )
         stored_step = int(self.store.get_run(run_id=self.run_id).step or 0)
@@ -218,7 +222,7 @@ class Trainer:
             self._evaluate()
 
     def close(self) -> None:
-        for env in (self.env, self.eval_env):
+        for env in (self.env, *self.eval_envs):
             with contextlib.suppress(Exception):  # closing must not hide the error that ended training
                 env.close()
 

@@ -18,7 +18,10 @@ def test_compose_file_is_valid_and_names_its_services() -> None:
     assert {"migrate", "web", "learner"} <= set(compose("config", "--services").split())
     assert "profiles:\n    - postgres" in compose("config")  # PostgreSQL only when asked for
     assert set(compose("--profile", "postgres", "config", "--services").split()) >= {
-        "migrate", "web", "learner", "postgres",
+        "migrate",
+        "web",
+        "learner",
+        "postgres",
     }  # fmt: skip  (docker-compose 1.29 lists the services of every profile)
 
 

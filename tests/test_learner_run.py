@@ -21,7 +21,7 @@ from app.settings import Settings
 from app.store import RunStatus, Store
 from learner.checkpoint import checkpoint_path, load_checkpoint
 from learner.config import TrainConfig
-from learner.envs import decode_image, encode_png
+from learner.envs import decode_image, encode_png, model_image, scale_action
 from learner.reward import RewardModel
 from learner.testing_envs import add_dot_goals
 from learner.train import Outcome, Trainer
@@ -339,7 +339,7 @@ def test_interrupt_stops_an_evaluation(setup: tuple[Settings, Store, int]) -> No
     interrupt = threading.Event()
     trainer = _claimed_trainer(store, settings, run_id, config, None, interrupt)
     steps = []
-    step = trainer.eval_env.step
+    step = trainer.eval_envs[0].step  # (the 5 episodes run in lockstep: the first env's steps are the ticks)
 
     def counted(action: np.ndarray):
         steps.append(1)
@@ -347,7 +347,7 @@ def test_interrupt_stops_an_evaluation(setup: tuple[Settings, Store, int]) -> No
             interrupt.set()
         return step(action)
 
-    trainer.eval_env.step = counted
+    trainer.eval_envs[0].step = counted
     try:
         trainer._evaluate()
     finally:
@@ -461,3 +461,36 @@ def test_candidates_scored_in_batches_give_the_queries_scored_one_at_a_time(
     batched = _posted_queries(store, goal_set_id, tiny_config(query_score_batch=16), tmp_path / "b.pt")
     assert len(one_at_a_time) == tiny_config().query_budget
     assert batched == one_at_a_time
+
+
+def test_lockstep_evaluation_runs_the_episodes_a_one_by_one_evaluation_runs(setup: tuple[Settings, Store, int]) -> None:
+    """11 episodes (groups of 8 and 3 envs): the recorded return and success rate are those of the same seeded
+    episodes played one at a time with the same deterministic policy."""
+    settings, store, _ = setup
+    config = tiny_config(algorithm="sparse", eval_episodes=11)
+    run_id = create_run(store, None, config)
+    trainer = _claimed_trainer(store, settings, run_id, config, None)
+    try:
+        assert len(trainer.eval_envs) == 8
+        step = 200
+        assert trainer.evaluator.evaluate(step)
+        env, space = trainer.env, trainer.evaluator.action_space
+        returns, successes = [], []
+        for episode in range(11):
+            raw, _ = env.reset(seed=config.seed * 100_003 + 1_000_000 + step + episode)
+            obs, total = model_image(raw, config.image_size), 0.0
+            for _ in range(config.episode_steps):
+                action = trainer.agent.act(obs, deterministic=True)
+                raw, reward, terminated, truncated, info = env.step(scale_action(action, space))
+                obs, total = model_image(raw, config.image_size), total + float(reward)
+                if terminated or truncated:
+                    break
+            returns.append(total)
+            successes.append(float(info["success"]))
+    finally:
+        trainer.close()
+    assert len(set(returns)) > 1  # the episodes differ (their seeds)
+    recorded = {m.name: m.value for m in store.metrics(run_id=run_id)}
+    assert recorded["eval/return"] == pytest.approx(np.mean(returns), abs=1e-6)
+    assert recorded["eval/success_rate"] == pytest.approx(np.mean(successes))
+    assert store.latest_rollout(run_id=run_id).frame_count == config.episode_steps + 1
