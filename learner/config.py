@@ -26,7 +26,7 @@ INT_MAXIMA: dict[str, int] = {
 }  # fmt: skip
 FLOAT_MAXIMA: dict[str, float] = {
     "actor_lr": 1.0, "critic_lr": 1.0, "alpha_lr": 1.0, "classifier_lr": 1.0, "initial_alpha": 1e6,
-    "mixup_alpha": 100.0, "heartbeat_seconds": 3600.0,
+    "mixup_alpha": 100.0, "heartbeat_seconds": 3600.0, "no_answer_share": 1.0,
 }  # fmt: skip
 DEVICE_PATTERN = re.compile(r"cpu|cuda(:(1[0-5]|[0-9]))?")
 ENV_ID_PATTERN = re.compile(r"[A-Za-z0-9_.\-/]+(:[A-Za-z0-9_.\-/]+)?")
@@ -129,6 +129,9 @@ class TrainConfig:
     """Environment steps per epoch: classifier training, answer reading and evaluation happen once each."""
     mixup_alpha: float = 1.0
     """Mixup lambda ~ Beta(alpha, alpha); 0 disables mixup."""
+    no_answer_share: float = 0.0
+    """VICE-RAQ: share of each classifier step's negatives drawn from the observations answered no (once there is
+    one), to unlearn the false positives the queries found; 0: the paper's (they are replay negatives like any)."""
     naive_classifier_steps: int = 10_000
     """naive_classifier: gradient steps of its one-off training after the first epoch."""
     raq_initial_negatives: int = 2000
@@ -216,6 +219,8 @@ class TrainConfig:
             errors.append(("tau", "must be in (0, 1]"))
         if self.mixup_alpha < 0:
             errors.append(("mixup_alpha", "must not be negative"))
+        if self.no_answer_share < 0:
+            errors.append(("no_answer_share", "must not be negative"))
         if self.algorithm not in ALGORITHMS:
             errors.append(("algorithm", f"must be one of {', '.join(ALGORITHMS)}"))
         for name, choices in _choice_fields().items():

@@ -42,7 +42,8 @@ class QueryChannel:
         self.config, self.store, self.run_id = config, store, run_id
         self.reward_model, self.counters, self.control = reward_model, counters, control
         self.selector = QuerySelector(config.query_strategy, config.query_candidates)
-        self.pool_negatives = ALGORITHM_SPECS[config.algorithm].negatives == "pool"
+        # a "no" joins the negatives: raq's pool, or vice_raq's answered negatives when it samples from them
+        self.keep_no_answers = ALGORITHM_SPECS[config.algorithm].negatives == "pool" or config.no_answer_share > 0
         self.asked = 0
         self.pending: list[Pending] = []  # observations waiting to be scored in one batch
         # every answered query's image and answer, by query id: what the page shows as the classifier's
@@ -113,7 +114,8 @@ class QueryChannel:
             self.control.event("query budget spent: no more queries")
 
     def read_answers(self) -> None:
-        """New answers (Alg. 2 line 8): a yes joins the positives; a no joins pool negatives (raq)."""
+        """New answers (Alg. 2 line 8): a yes joins the positives; a no joins the pool negatives (raq) or the
+        answered negatives (vice_raq with no_answer_share > 0)."""
         model = self.reward_model
         answers = self.store.new_answers(run_id=self.run_id, since_seq=self.counters.answer_cursor)
         yes = no = 0
@@ -125,7 +127,7 @@ class QueryChannel:
                 yes += 1
             else:
                 no += 1
-                if self.pool_negatives:
+                if self.keep_no_answers:
                     model.add_negative(image)
             self.counters.answer_cursor = max(self.counters.answer_cursor, answer.answer_seq)
         if answers:

@@ -97,6 +97,11 @@ class GraphedCall:
         return self.output
 
 
+def no_answer_count(config: TrainConfig) -> int:
+    """Negatives per classifier step drawn from the observations answered no (replay-negative methods)."""
+    return round(config.no_answer_share * config.classifier_batch_size)
+
+
 class HostUpdates:
     """The CPU path: numpy batches, cached rewards, metrics read per update."""
 
@@ -128,15 +133,25 @@ class HostUpdates:
 
     def classifier_step(self, *, accuracy: bool) -> dict[str, float]:
         """One classifier step (Alg. 2 lines 9-11) on the method's positives and negatives; its metrics."""
-        model, cfg = self.reward_model, self.config
+        model = self.reward_model
         assert model is not None
-        positives = model.sample_positives(cfg.classifier_batch_size)
-        if self.spec.negatives == "replay":  # uniform replay samples
-            negatives = self.replay.sample_next_frames(self.rng, cfg.classifier_batch_size)
-        else:
-            negatives = model.sample_negatives(cfg.classifier_batch_size)
+        positives = model.sample_positives(self.config.classifier_batch_size)
         policy = self.agent.policy if self.spec.airl else None
-        return model.update_classifier(positives, negatives, policy, accuracy=accuracy)
+        return model.update_classifier(positives, self.negatives(), policy, accuracy=accuracy)
+
+    def negatives(self) -> np.ndarray:
+        """A classifier step's negatives: uniform replay samples (VICE methods; the first no_answer_share of them
+        from the observations answered no, once there is one), or the pool (raq, naive)."""
+        model, size = self.reward_model, self.config.classifier_batch_size
+        assert model is not None
+        if self.spec.negatives == "pool":
+            return model.sample_negatives(size)
+        negatives = self.replay.sample_next_frames(self.rng, size)
+        answered = no_answer_count(self.config)
+        if answered and len(model.answered_negatives):
+            picks = self.rng.integers(0, len(model.answered_negatives), size=answered)
+            negatives[:answered] = model.answered_negatives[picks]
+        return negatives
 
     def take_metrics(self) -> dict[str, float]:
         return self.metrics.take()
@@ -196,6 +211,7 @@ class DeviceUpdates:
         spare = config.query_budget + 1
         self.positives = DeviceExamples(self.device, spare)
         self.pool_negatives = DeviceExamples(self.device, spare)
+        self.no_answers = DeviceExamples(self.device, spare)
 
     def describe(self) -> str:
         graphs = "CUDA graphs" if self.device.type == "cuda" else "eager (no CUDA)"
@@ -235,6 +251,8 @@ class DeviceUpdates:
         replaced = self.positives.sync(model.positives)
         if self.spec.negatives == "pool":
             replaced |= self.pool_negatives.sync(model.negatives)
+        elif no_answer_count(self.config):
+            replaced |= self.no_answers.sync(model.answered_negatives)
         if replaced and self.classifier_graph.graph is not None:  # the old storage is in the graph: capture anew
             self.classifier_graph = GraphedCall(self._classifier_step_on_device, self.device)
         self.classifier_graph()
@@ -244,12 +262,21 @@ class DeviceUpdates:
     def _classifier_step_on_device(self) -> torch.Tensor:
         model, size = self.reward_model, self.config.classifier_batch_size
         assert model is not None
-        if self.spec.negatives == "replay":
-            negatives = self.replay.sample_next_frames(size)
-        else:
-            negatives = self.pool_negatives.sample(size)
         policy = self.agent.policy if self.spec.airl else None
-        return model.step_on_device(self.positives.sample(size), negatives, policy)
+        return model.step_on_device(self.positives.sample(size), self.negatives_on_device(), policy)
+
+    def negatives_on_device(self) -> torch.Tensor:
+        """HostUpdates.negatives on the device (the sets as of the last classifier_step's sync)."""
+        size = self.config.classifier_batch_size
+        if self.spec.negatives == "pool":
+            return self.pool_negatives.sample(size)
+        negatives = self.replay.sample_next_frames(size)
+        answered = no_answer_count(self.config)
+        if not answered:
+            return negatives
+        use = (self.no_answers.count > 0).view(1, 1, 1, 1)  # (no host read: the graph holds the choice)
+        first = torch.where(use, self.no_answers.sample(answered), negatives[:answered])
+        return torch.cat([first, negatives[answered:]])
 
     def take_metrics(self) -> dict[str, float]:
         return self.metrics.take()

@@ -194,3 +194,31 @@ def test_metric_sums_average_floats_and_device_tensors_alike() -> None:
         tensors.add({"a": torch.tensor(value), "b": torch.tensor(-value)})
     assert floats.take() == tensors.take() == {"a": 3.0, "b": -3.0}
     assert floats.take() == {} and tensors.count == 0
+
+
+def test_no_answers_join_a_share_of_the_vice_raq_negatives_on_host_and_device() -> None:
+    """no_answer_share=0.25: before any "no" the negatives are all replay frames; after, the first quarter of each
+    batch comes from the answered-no images (host and device alike); at 0 (the paper) none do."""
+    rng = np.random.default_rng(7)
+    torch.manual_seed(7)
+    replay = ReplayBuffer(50, (SIZE, SIZE, 3), 2)
+    filled(replay, 30, rng)
+    spec = ALGORITHM_SPECS["vice_raq"]
+    no_images = np.full((2, SIZE, SIZE, 3), 255, dtype=np.uint8)  # all white: never a random replay frame
+    no_images[1, 0, 0] = 0
+    for share, expected in ((0.25, 2), (0.0, 0)):
+        config = tiny(algorithm="vice_raq", replay_pipeline="device", no_answer_share=share)
+        agent = SACAgent(config, action_dim=2)
+        model = RewardModel(config, rng)
+        model.goals = rng.integers(0, 256, (4, SIZE, SIZE, 3), dtype=np.uint8)
+        device = DeviceUpdates(config, agent=agent, replay=replay, reward_model=model, spec=spec, rng=rng)
+        host = device.host
+        device.classifier_step(accuracy=False)  # syncs the (still empty) answered set
+        for batch in (host.negatives(), device.negatives_on_device().numpy()):
+            assert len(batch) == 8 and not any((image == 255).all() for image in batch)
+        for image in no_images:
+            model.add_negative(image)
+        device.classifier_step(accuracy=False)
+        for batch in (host.negatives(), device.negatives_on_device().numpy()):
+            from_answers = [i for i, image in enumerate(batch) if any(np.array_equal(image, n) for n in no_images)]
+            assert from_answers == list(range(expected))
