@@ -25,6 +25,28 @@ ROOT = Path(__file__).resolve().parent.parent
 # The tests' own env module, allowed for every learner the tests start (in-process or as a subprocess).
 os.environ.setdefault("RAQ_ENV_MODULES", "learner.testing_envs")
 ARTIFACTS = ROOT / "test-artifacts"
+GPU_TESTS_NOT_RUN: list[str] = []
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Tests marked gpu need CUDA: where there is none they are deselected and named in the summary (CI has no
+    GPU; the GPU path's code also runs eagerly on the CPU in tests/test_device_updates.py)."""
+    import torch
+
+    if torch.cuda.is_available():
+        return
+    gpu = [item for item in items if item.get_closest_marker("gpu")]
+    if gpu:
+        GPU_TESTS_NOT_RUN.extend(item.nodeid for item in gpu)
+        config.hook.pytest_deselected(items=gpu)
+        items[:] = [item for item in items if not item.get_closest_marker("gpu")]
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    if GPU_TESTS_NOT_RUN:
+        terminalreporter.write_sep("=", f"{len(GPU_TESTS_NOT_RUN)} GPU tests NOT RUN: no CUDA device on this machine")
+        for nodeid in GPU_TESTS_NOT_RUN:
+            terminalreporter.write_line(f"not run (no CUDA): {nodeid}")
 
 
 @pytest.fixture
