@@ -138,8 +138,10 @@ def main() -> int:
     upgrade(database_url)
     store = Store(database_url)
     earlier_minutes = 0.0
-    if args.resume:  # the one run of this --out, as it was stopped
-        run = store.resume_run(run_id=store.list_runs()[0].id)
+    if args.resume:  # the one run of this --out, as it was stopped (or re-queued by an interrupt: claimed as it is)
+        run = store.list_runs()[0]
+        if run.status != "queued":
+            run = store.resume_run(run_id=run.id)
         earlier_minutes = float(json.loads((out / "summary.json").read_text())["wall_minutes"])
     else:
         goal_set_id = add_simulated_goal_set(store, task=args.task, name=f"{args.task} goals", count=args.goals)

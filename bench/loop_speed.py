@@ -99,17 +99,18 @@ def main() -> int:
     parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
     parser.add_argument("--query-every", type=int, default=1000, help="a query every this many env steps")
     parser.add_argument("--device", default="cpu", help="the learner's torch device (cpu, cuda)")
+    parser.add_argument("--envs", type=int, default=1, help="training envs in lockstep (TrainConfig.num_envs)")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     config = TrainConfig(
         env_id=TASKS[args.task], total_steps=WARM_UP + args.steps, query_every=args.query_every,
-        query_budget=1000, checkpoint_every=10**9, device=args.device,
+        query_budget=1000, checkpoint_every=10**9, device=args.device, num_envs=args.envs,
     )  # fmt: skip
     print(
         f"torch {torch.__version__}, {torch.get_num_threads()} threads, {config.env_id}, default config, "
         f"precision {config.precision} -> {resolve_precision(config.precision, torch.device(args.device).type)}; "
-        f"{args.steps} env steps timed on {args.device}",
+        f"{args.steps} env steps timed on {args.device}, {args.envs} env(s) in lockstep",
         flush=True,
     )
     with tempfile.TemporaryDirectory() as tmp:
@@ -132,8 +133,9 @@ def main() -> int:
         timer.wrap(trainer, "_evaluate", "evaluation")
         timer.wrap(trainer, "_observe", "query scoring")
         timer.wrap(trainer, "_log", "metrics")
-        timer.wrap(trainer.env, "step", "env step")
-        timer.wrap(trainer.agent, "act", "acting")
+        for episode in trainer.episodes:
+            timer.wrap(episode.env, "step", "env step")
+        timer.wrap(trainer, "_actions", "acting")
         started: list[float] = []
         original_after_step = trainer._after_step
 

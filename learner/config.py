@@ -22,7 +22,7 @@ INT_MAXIMA: dict[str, int] = {
     "naive_classifier_steps": 1_000_000, "raq_initial_negatives": 1_000_000, "query_every": 1_000_000_000,
     "query_budget": 100_000, "eval_every": 1_000_000_000, "eval_episodes": 1000, "checkpoint_every": 1_000_000_000,
     "display_size": 1024, "rollout_size": 512, "query_candidates": 1024, "query_score_batch": 4096,
-    "log_every": 1_000_000_000,
+    "log_every": 1_000_000_000, "num_envs": 64,
 }  # fmt: skip
 FLOAT_MAXIMA: dict[str, float] = {
     "actor_lr": 1.0, "critic_lr": 1.0, "alpha_lr": 1.0, "classifier_lr": 1.0, "initial_alpha": 1e6,
@@ -92,6 +92,9 @@ class TrainConfig:
     """Target policy entropy; None means -dim(A)."""
     initial_random_steps: int = 1000
     """Uniform random actions before the policy acts (and before updates start)."""
+    num_envs: int = 1
+    """Training envs stepped in lockstep: the policy acts for all in one batch (one forward pass per num_envs env
+    steps), then each env's step is one step of the loop with its updates_per_step updates."""
     updates_per_step: int = 1
     """Gradient steps per environment step."""
     replay_capacity: int = 200_000
@@ -176,9 +179,10 @@ class TrainConfig:
         """(field, message) for each value that cannot work."""
         errors: list[tuple[str, str]] = []
         positive_ints = (
-            "image_size", "total_steps", "episode_steps", "batch_size", "updates_per_step", "replay_capacity",
-            "conv_filters", "hidden_dim", "classifier_batch_size", "epoch_steps", "query_every", "eval_every",
-            "checkpoint_every", "display_size", "rollout_size", "query_candidates", "query_score_batch", "log_every",
+            "image_size", "total_steps", "episode_steps", "batch_size", "updates_per_step", "num_envs",
+            "replay_capacity", "conv_filters", "hidden_dim", "classifier_batch_size", "epoch_steps", "query_every",
+            "eval_every", "checkpoint_every", "display_size", "rollout_size", "query_candidates", "query_score_batch",
+            "log_every",
         )  # fmt: skip
         for field in fields(self):
             value = getattr(self, field.name)

@@ -15,7 +15,7 @@ import io
 import json
 import threading
 import time
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -92,7 +92,11 @@ class Trainer:
         torch.manual_seed(config.seed)
         self.rng = np.random.default_rng(config.seed)
         size = config.image_size
-        self.env = make_env(config.env_id, image_size=size, display_size=config.display_size)
+        self.episodes = [
+            EnvEpisode(make_env(config.env_id, image_size=size, display_size=config.display_size))
+            for _ in range(config.num_envs)
+        ]
+        self.env = self.episodes[0].env
         self.eval_envs = [
             make_env(config.env_id, image_size=size, display_size=config.display_size)
             for _ in range(eval_env_count(config))
@@ -115,22 +119,20 @@ class Trainer:
             config, envs=self.eval_envs, agent=self.agent, reward_model=self.reward_model, store=store, run_id=run_id,
             control=self.control,
         )  # fmt: skip
-        self.obs = np.zeros((size, size, 3), dtype=np.uint8)
-        self.obs_slot = 0
-        self.episode_len = 0
-        self.episode_return = 0.0
         self.finished_returns: list[float] = []
         self.finished_successes: list[float | None] = []
         self.log_time, self.log_step, self.log_updates = time.monotonic(), 0, 0
 
     # ================================================================== the loop
     def train(self) -> str:
-        """Alg. 2, one env step at a time; what is due at a step's interval happens after it (`_after_step`)."""
+        """Alg. 2, one env step at a time; what is due at a step's interval happens after it (`_after_step`). With
+        num_envs > 1 the policy acts for all envs in one batch, then each env's step is one step of the loop."""
         cfg, counters = self.config, self.counters
         resumed = self._set_up()
         if resumed is None:
             return self._stop_or_lost()
-        self._begin_episode(seed=None if resumed else cfg.seed)
+        for index, episode in enumerate(self.episodes):
+            self._begin_episode(episode, seed=None if resumed else cfg.seed + index)
         if resumed:
             self._redo_interrupted_work()
         self.control.set_phase(self._loop_phase())
@@ -141,9 +143,16 @@ class Trainer:
             outcome = self._check_control()
             if outcome is not None:
                 return outcome
-            self._env_step()
-            self._after_step()
+            for episode, action in zip(self.episodes, self._actions(), strict=True):
+                self._env_step(episode, action)
+                self._after_step()
+                if counters.step >= cfg.total_steps or self._control_due():
+                    break  # (the rest of the envs act anew after the control check)
         return self._finish()
+
+    def _control_due(self) -> bool:
+        """A checkpoint was just written (a higher-priority run may be waiting) or an interrupt came."""
+        return self.control.interrupted or self.counters.step % self.config.checkpoint_every == 0
 
     def _after_step(self) -> None:
         cfg, step = self.config, self.counters.step
@@ -222,20 +231,28 @@ class Trainer:
             self._evaluate()
 
     def close(self) -> None:
-        for env in (self.env, *self.eval_envs):
+        for env in (*(episode.env for episode in self.episodes), *self.eval_envs):
             with contextlib.suppress(Exception):  # closing must not hide the error that ended training
                 env.close()
 
-    def _env_step(self) -> None:
+    def _actions(self) -> np.ndarray:
+        """One action per env: uniformly random during the warm-up, else the policy's, in one batch."""
+        cfg, first = self.config, self.counters.step
+        actions = np.empty((len(self.episodes), self.action_dim), dtype=np.float32)
+        random = [index for index in range(len(self.episodes)) if first + index < cfg.initial_random_steps]
+        for index in random:
+            actions[index] = self.rng.uniform(-1.0, 1.0, self.action_dim)
+        acting = [index for index in range(len(self.episodes)) if index not in random]
+        if acting:
+            actions[acting] = self.agent.act_batch(np.stack([self.episodes[index].obs for index in acting]))
+        return actions
+
+    def _env_step(self, episode: "EnvEpisode", action: np.ndarray) -> None:
         cfg = self.config
-        if self.counters.step < cfg.initial_random_steps:
-            action = self.rng.uniform(-1.0, 1.0, self.action_dim).astype(np.float32)
-        else:
-            action = self.agent.act(self.obs)
-        raw, reward, terminated, truncated, info = self.env.step(scale_action(action, self.action_space))
+        raw, reward, terminated, truncated, info = episode.env.step(scale_action(action, self.action_space))
         self.counters.step += 1
-        self.episode_len += 1
-        self.episode_return += float(reward)
+        episode.length += 1
+        episode.total += float(reward)
         next_obs = model_image(raw, cfg.image_size)
         success = success_of(info)
         if success is None and self.spec.needs_success:
@@ -243,33 +260,33 @@ class Trainer:
                 f"algorithm {cfg.algorithm!r} needs the env to report info['success']; {cfg.env_id} does not"
             )
         next_slot = self.replay.add_frame(next_obs)
-        self.replay.add(self.obs_slot, action, next_slot, bool(terminated), success)
-        self._observe(next_obs, info, success)  # before any reset: the display render is of s_{t+1}
-        if terminated or truncated or self.episode_len >= cfg.episode_steps:
-            self.finished_returns.append(self.episode_return)
+        self.replay.add(episode.obs_slot, action, next_slot, bool(terminated), success)
+        self._observe(episode.env, next_obs, info, success)  # before any reset: the display render is of s_{t+1}
+        if terminated or truncated or episode.length >= cfg.episode_steps:
+            self.finished_returns.append(episode.total)
             self.finished_successes.append(success)
-            self._begin_episode()
+            self._begin_episode(episode)
         else:
-            self.obs, self.obs_slot = next_obs, next_slot
+            episode.obs, episode.obs_slot = next_obs, next_slot
 
-    def _begin_episode(self, seed: int | None = None) -> None:
-        raw, info = self.env.reset(seed=seed)
-        self.obs = model_image(raw, self.config.image_size)
-        self.obs_slot = self.replay.add_frame(self.obs)
-        self.episode_len, self.episode_return = 0, 0.0
-        self._observe(self.obs, info, success_of(info))
+    def _begin_episode(self, episode: "EnvEpisode", seed: int | None = None) -> None:
+        raw, info = episode.env.reset(seed=seed)
+        episode.obs = model_image(raw, self.config.image_size)
+        episode.obs_slot = self.replay.add_frame(episode.obs)
+        episode.length, episode.total = 0, 0.0
+        self._observe(episode.env, episode.obs, info, success_of(info))
 
-    def _observe(self, image: np.ndarray, info: dict[str, Any], success: float | None) -> None:
+    def _observe(self, env: Any, image: np.ndarray, info: dict[str, Any], success: float | None) -> None:
         """Offer a new observation to the query channel; its display render is of this same state: rendered now
         if it is kept, or later from a snapshot of the state when the env can take one (then scored in a batch)."""
         if self.queries is None or not self.queries.budget_left:
             return
         size = self.config.display_size
-        snapshot = snapshot_of(self.env) if self.config.query_score_batch > 1 else None
+        snapshot = snapshot_of(env) if self.config.query_score_batch > 1 else None
         if snapshot is None:
-            self.queries.observe(image, info, success, functools.partial(display_image, self.env, size, image))
+            self.queries.observe(image, info, success, functools.partial(display_image, env, size, image))
         else:
-            render = functools.partial(display_of_snapshot, self.env, snapshot, size, image)
+            render = functools.partial(display_of_snapshot, env, snapshot, size, image)
             self.queries.observe(image, info, success, render, deferred=True)
 
     def _finish(self) -> str:
@@ -431,6 +448,7 @@ class Trainer:
                 "torch": torch.get_rng_state(),
                 "cuda": _cuda_rng_states(self.agent.device),
                 "env": _env_rng_state(self.env),
+                "envs": [_env_rng_state(episode.env) for episode in self.episodes],
             },
         }
 
@@ -456,9 +474,12 @@ class Trainer:
         # (another host may have another number of GPUs: then each keeps its own streams)
         if cuda is not None and torch.cuda.is_available() and len(cuda) == torch.cuda.device_count():
             torch.cuda.set_rng_state_all(cuda)
-        if state["rng"]["env"] is not None:
-            self.env.reset(seed=self.config.seed)  # creates the env's generator, then continue its stream
-            self.env.unwrapped.np_random.bit_generator.state = state["rng"]["env"]
+        # each env's generator continues its stream (checkpoints from before num_envs hold the first env's only)
+        env_states = state["rng"].get("envs") or [state["rng"]["env"]]
+        for index, (episode, env_state) in enumerate(zip(self.episodes, env_states, strict=False)):
+            if env_state is not None:
+                episode.env.reset(seed=self.config.seed + index)  # creates the env's generator
+                episode.env.unwrapped.np_random.bit_generator.state = env_state
 
     # ================================================================== goals
     def _load_goals(self) -> None:
@@ -480,6 +501,17 @@ class Trainer:
         self.reward_model.goals = np.stack(images)
         note = f" ({remade} remade at {size}x{size} px from their originals)" if remade else ""
         self.control.event(f"loaded {len(goals)} goal examples{note}")
+
+
+@dataclass
+class EnvEpisode:
+    """A training env and its current episode: the last observation, its replay slot, length and reward sum."""
+
+    env: Any
+    obs: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3), dtype=np.uint8))
+    obs_slot: int = 0
+    length: int = 0
+    total: float = 0.0
 
 
 def decode_image_at_size(data: bytes) -> np.ndarray:

@@ -1,6 +1,7 @@
 """Runs end to end through a real temporary SQLite store: answers arriving while training, every algorithm,
 a bring-your-own env without success, answers reaching the example sets, SIGTERM re-queueing and SIGKILL resume."""
 
+import json
 import os
 import signal
 import subprocess
@@ -494,3 +495,39 @@ def test_lockstep_evaluation_runs_the_episodes_a_one_by_one_evaluation_runs(setu
     assert recorded["eval/return"] == pytest.approx(np.mean(returns), abs=1e-6)
     assert recorded["eval/success_rate"] == pytest.approx(np.mean(successes))
     assert store.latest_rollout(run_id=run_id).frame_count == config.episode_steps + 1
+
+
+def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: tuple[Settings, Store, int]) -> None:
+    """num_envs=3: every env steps (the policy acting for all in one batch), each env step is one loop step, a
+    checkpoint step ends the batch early (the control check comes right after it), each env's generator is in the
+    checkpoint, and the run finishes at exactly total_steps."""
+    settings, store, goal_set_id = setup
+    config = tiny_config(algorithm="vice_raq", num_envs=3, total_steps=200, checkpoint_every=100)
+    run_id = create_run(store, goal_set_id, config)
+    trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
+    steps = [0, 0, 0]
+    for index, episode in enumerate(trainer.episodes):
+        original = episode.env.step
+
+        def counted(action: np.ndarray, index: int = index, original=original):
+            steps[index] += 1
+            return original(action)
+
+        episode.env.step = counted
+    batches = []
+    act_batch = trainer.agent.act_batch
+    trainer.agent.act_batch = lambda observations, deterministic=False: (
+        batches.append(len(observations)) or act_batch(observations, deterministic)
+    )
+    try:
+        assert trainer.train() == Outcome.FINISHED
+    finally:
+        trainer.close()
+    assert trainer.counters.step == 200 and trainer.replay.added == 200
+    assert sum(steps) == 200 and min(steps) >= 60, steps
+    assert steps[0] == 68  # the checkpoint at step 100 ended a batch after the first env; the next began with it
+    # one forward pass per 3 env steps after the warm-up (the evaluations act on their 2 episodes in one batch)
+    assert batches.count(3) >= (200 - config.initial_random_steps) // 3 - 2 and batches.count(2) > 0
+    state = load_checkpoint(checkpoint_path(settings.checkpoint_dir, run_id))
+    assert len(state["rng"]["envs"]) == 3 and state["rng"]["envs"][0] == state["rng"]["env"]
+    assert len({json.dumps(s, default=str) for s in state["rng"]["envs"]}) == 3  # seeds cfg.seed + index
