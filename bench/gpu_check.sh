@@ -20,7 +20,7 @@ python3 -c "import torch; print('torch', torch.__version__, 'cuda', torch.versio
 nproc | tee -a "$OUT/machine.txt"
 
 if [ "$phase" = speed ]; then
-  timeout 240 python3 bench/learner_speed.py --device cuda --updates 500 --blocks 2 2>&1 | tee "$OUT/learner_speed.txt"
+  timeout 330 python3 bench/learner_speed.py --device cuda --compile --updates 500 --blocks 2 2>&1 | tee "$OUT/learner_speed.txt"
   for envs in 1 4; do
     timeout 150 python3 bench/loop_speed.py --device cuda --steps 3000 --envs "$envs" 2>&1 | tee -a "$OUT/loop_speed.txt"
   done

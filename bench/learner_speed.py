@@ -14,7 +14,7 @@ GPU, sampling, shift and rewards f_psi(s') inside the update, the update and the
 graphs, eagerly and as graphs; the graphed updates run under `torch.cuda.set_sync_debug_mode("error")`, so a host
 sync inside an update would stop the benchmark.
 
-    python bench/learner_speed.py [--updates 300] [--blocks 2] [--device cpu|cuda] [--threads N]
+    python bench/learner_speed.py [--updates 300] [--blocks 2] [--device cpu|cuda [--compile]] [--threads N]
 """
 
 import argparse
@@ -177,6 +177,7 @@ def main() -> int:
     parser.add_argument("--transitions", type=int, default=20_000, help="replay size sampled from")
     parser.add_argument("--blocks", type=int, default=2, help="timed blocks per configuration (the best counts)")
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--compile", action="store_true", help="on a GPU also measure compile_updates=True")
     parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
     args = parser.parse_args()
     if args.threads:
@@ -199,12 +200,19 @@ def main() -> int:
             print("         ms per update: " + ", ".join(f"{part} {ms:.1f}" for part, ms in parts.items()), flush=True)
     print(f"ratio default/paper: {results['default'] / results['paper']:.2f}x")
     if args.device.startswith("cuda"):
-        for precision in ("fp32", "bf16"):
-            config = TrainConfig(device=args.device, precision=precision, replay_pipeline="device")
-            for graphs in (False, True):
-                rate, how = measure_device_pipeline(config, args.updates, args.transitions, args.blocks, graphs)
-                label = f"device pipeline, {precision}, {'CUDA graphs' if graphs else 'eager'}"
-                print(f"{label:40s} updates/s {rate:7.1f}   ({how})", flush=True)
+        variants = [(precision, graphs, False) for precision in ("fp32", "bf16") for graphs in (False, True)]
+        if args.compile:
+            variants.append(("bf16", True, True))
+        for precision, graphs, compiled in variants:
+            config = TrainConfig(
+                device=args.device, precision=precision, replay_pipeline="device", compile_updates=compiled
+            )  # fmt: skip
+            started = time.perf_counter()
+            rate, how = measure_device_pipeline(config, args.updates, args.transitions, args.blocks, graphs)
+            label = f"device pipeline, {precision}, {'CUDA graphs' if graphs else 'eager'}"
+            label += ", torch.compile" if compiled else ""
+            seconds = time.perf_counter() - started
+            print(f"{label:55s} updates/s {rate:7.1f}   ({how}; {seconds:.0f} s in all)", flush=True)
     print(machine_line())
     return 0
 

@@ -117,6 +117,9 @@ class TrainConfig:
     """Autocast dtype of every network (SAC and f_psi); bf16 also hands them bf16 images; auto: bf16 where faster."""
     device: str = "cpu"
     """Torch device: "cpu", "cuda" or "cuda:N", a GPU this host has."""
+    compile_updates: bool = False
+    """Device pipeline: fuse the SAC update's and the classifier step's kernels with torch.compile before they are
+    captured as CUDA graphs (fewer, larger kernels; compiling takes tens of seconds at the start of a run)."""
     replay_pipeline: Literal["auto", "host", "device"] = "auto"
     """Where replay batches are sampled, shifted and rewarded: host (numpy, cached f_psi rewards) or device (a
     copy of the replay on `device`, f_psi(s') in each update, CUDA graphs on a GPU); auto: device on a GPU."""

@@ -70,14 +70,25 @@ def _matmul_seconds(dtype: torch.dtype, repeats: int = 5) -> float:
 
 def input_dtype(precision: str, device: torch.device) -> torch.dtype:
     """The dtype networks take their images in: bf16 under bf16 precision (what autocast casts them to)."""
-    return torch.bfloat16 if resolve_precision(precision, device.type) == "bf16" else torch.float32
+    return dtype_of(resolve_precision(precision, device.type))
 
 
 def precision_autocast(precision: str, device: torch.device) -> AbstractContextManager[Any]:
-    """bf16 autocast on `device` under bf16 precision, else a disabled one. On a GPU without autocast's cache of
-    cast weights, which CUDA graph capture does not allow."""
-    enabled = resolve_precision(precision, device.type) == "bf16"
-    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=enabled, cache_enabled=device.type != "cuda")
+    """bf16 autocast on `device` under bf16 precision, else a disabled one."""
+    return autocast_of(resolve_precision(precision, device.type), device)
+
+
+def dtype_of(resolved: str) -> torch.dtype:
+    """The image dtype of a resolved precision ("fp32" or "bf16"; no lookup, so torch.compile traces it)."""
+    return torch.bfloat16 if resolved == "bf16" else torch.float32
+
+
+def autocast_of(resolved: str, device: torch.device) -> AbstractContextManager[Any]:
+    """The autocast of a resolved precision. On a GPU without autocast's cache of cast weights, which CUDA graph
+    capture does not allow."""
+    return torch.autocast(
+        device.type, dtype=torch.bfloat16, enabled=resolved == "bf16", cache_enabled=device.type != "cuda"
+    )
 
 
 def mlp(in_dim: int, hidden_dim: int, out_dim: int) -> nn.Sequential:

@@ -20,7 +20,7 @@ import torch.nn.functional as F
 
 from learner.algorithms import ALGORITHM_SPECS
 from learner.config import TrainConfig
-from learner.networks import RewardClassifier, input_dtype, precision_autocast, to_float
+from learner.networks import RewardClassifier, autocast_of, dtype_of, resolve_precision, to_float
 from learner.replay import ReplayBuffer
 
 Policy = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -59,6 +59,7 @@ class RewardModel:
         self.config = config
         self.rng = rng
         self.device = torch.device(config.device)
+        self.precision = resolve_precision(config.precision, self.device.type)
         self.net = RewardClassifier(config.image_size, config.conv_filters, config.hidden_dim, config.encoder)
         self.net.to(self.device, memory_format=torch.channels_last)
         self.opt = torch.optim.Adam(
@@ -89,11 +90,11 @@ class RewardModel:
 
     # ------------------------------------------------------------------ inference
     def autocast(self) -> AbstractContextManager[Any]:
-        return precision_autocast(self.config.precision, self.device)
+        return autocast_of(self.precision, self.device)
 
     def images(self, images: np.ndarray) -> torch.Tensor:
         """uint8 NHWC -> f_psi's input (bf16 at once under bf16 precision)."""
-        return to_float(images, self.device, input_dtype(self.config.precision, self.device))
+        return to_float(images, self.device, dtype_of(self.precision))
 
     @torch.no_grad()
     def logits(self, images: np.ndarray, chunk: int = 1024) -> np.ndarray:

@@ -23,8 +23,9 @@ from learner.networks import (
     ConvEncoder,
     Critic,
     SharedEncoder,
-    input_dtype,
-    precision_autocast,
+    autocast_of,
+    dtype_of,
+    resolve_precision,
     squashed_gaussian_sample,
     to_float,
     twin_to_ensemble,
@@ -37,6 +38,7 @@ class SACAgent:
     def __init__(self, config: TrainConfig, action_dim: int) -> None:
         self.config = config
         self.device = torch.device(config.device)
+        self.precision = resolve_precision(config.precision, self.device.type)
         self.action_dim = action_dim
         size, filters, hidden = config.image_size, config.conv_filters, config.hidden_dim
         if config.shared_encoder:
@@ -77,10 +79,10 @@ class SACAgent:
 
     def images(self, images: np.ndarray) -> torch.Tensor:
         """uint8 NHWC images -> the networks' input (bf16 at once under bf16 precision)."""
-        return to_float(images, self.device, input_dtype(self.config.precision, self.device))
+        return to_float(images, self.device, dtype_of(self.precision))
 
     def autocast(self) -> AbstractContextManager[Any]:
-        return precision_autocast(self.config.precision, self.device)
+        return autocast_of(self.precision, self.device)
 
     @property
     def alpha(self) -> torch.Tensor:

@@ -206,15 +206,23 @@ class DeviceUpdates:
         self.replay = DeviceReplay(replay, self.device)
         self.pad = self.host.pad
         self.metrics = MetricSums()
-        self.sac_graph = GraphedCall(self._sac_update_on_device, self.device)
-        self.classifier_graph = GraphedCall(self._classifier_step_on_device, self.device)
+        self.sac_step = self._compiled(self._sac_update_on_device)
+        self.classifier_step_fn = self._compiled(self._classifier_step_on_device)
+        self.sac_graph = GraphedCall(self.sac_step, self.device)
+        self.classifier_graph = GraphedCall(self.classifier_step_fn, self.device)
         spare = config.query_budget + 1
         self.positives = DeviceExamples(self.device, spare)
         self.pool_negatives = DeviceExamples(self.device, spare)
         self.no_answers = DeviceExamples(self.device, spare)
 
+    def _compiled(self, fn: Callable[[], Any]) -> Callable[[], Any]:
+        """fn through torch.compile when `compile_updates` (its kernels fused; the graph is captured around it)."""
+        return torch.compile(fn) if self.config.compile_updates else fn
+
     def describe(self) -> str:
         graphs = "CUDA graphs" if self.device.type == "cuda" else "eager (no CUDA)"
+        if self.config.compile_updates:
+            graphs = f"torch.compile + {graphs}"
         failures = [f"{name}: {g.failure}" for name, g in (("SAC", self.sac_graph), ("f_psi", self.classifier_graph))
                     if g.failure]  # fmt: skip
         note = f"; graph capture failed, eager instead ({'; '.join(failures)})" if failures else ""
@@ -254,7 +262,7 @@ class DeviceUpdates:
         elif no_answer_count(self.config):
             replaced |= self.no_answers.sync(model.answered_negatives)
         if replaced and self.classifier_graph.graph is not None:  # the old storage is in the graph: capture anew
-            self.classifier_graph = GraphedCall(self._classifier_step_on_device, self.device)
+            self.classifier_graph = GraphedCall(self.classifier_step_fn, self.device)
         self.classifier_graph()
         model.version += 1  # (a graph replay runs no Python)
         return {}

@@ -17,10 +17,14 @@ pytestmark = pytest.mark.gpu
 SIZE = 48
 
 
-def pipeline(algorithm: str, precision: str = "fp32") -> tuple[DeviceUpdates, ReplayBuffer, SACAgent]:
+def pipeline(
+    algorithm: str, precision: str = "fp32", compiled: bool = False
+) -> tuple[DeviceUpdates, ReplayBuffer, SACAgent]:
     rng = np.random.default_rng(0)
     torch.manual_seed(0)
-    config = TrainConfig(device="cuda", precision=precision, algorithm=algorithm, replay_capacity=2000)
+    config = TrainConfig(
+        device="cuda", precision=precision, algorithm=algorithm, replay_capacity=2000, compile_updates=compiled
+    )  # fmt: skip
     agent = SACAgent(config, action_dim=3)
     replay = ReplayBuffer(config.replay_capacity, (SIZE, SIZE, 3), 3)
     slot = replay.add_frame(rng.integers(0, 256, (SIZE, SIZE, 3), dtype=np.uint8))
@@ -36,10 +40,13 @@ def pipeline(algorithm: str, precision: str = "fp32") -> tuple[DeviceUpdates, Re
     return updates, replay, agent
 
 
-@pytest.mark.parametrize("precision", ["fp32", "bf16"])
-@pytest.mark.parametrize("algorithm", ["vice_raq", "sparse"])
-def test_updates_replay_as_cuda_graphs_without_a_host_sync(algorithm: str, precision: str) -> None:
-    updates, replay, agent = pipeline(algorithm, precision)
+@pytest.mark.parametrize(
+    ("algorithm", "precision", "compiled"),
+    [("vice_raq", "fp32", False), ("vice_raq", "bf16", False), ("sparse", "fp32", False), ("sparse", "bf16", False),
+     ("vice_raq", "bf16", True)],
+)  # fmt: skip
+def test_updates_replay_as_cuda_graphs_without_a_host_sync(algorithm: str, precision: str, compiled: bool) -> None:
+    updates, replay, agent = pipeline(algorithm, precision, compiled)
     for _ in range(GRAPH_WARMUP_CALLS + 1):
         updates.sac_update()
         if updates.reward_model is not None:
