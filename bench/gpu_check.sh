@@ -5,6 +5,8 @@
 #   bash bench/gpu_check.sh speed            learner_speed and loop_speed on cuda (about 3 minutes)
 #   bash bench/gpu_check.sh learn MINUTES    learning runs side by side on the GPU for MINUTES: VICE-RAQ on the
 #                                            pusher (stops at 90%), the door and the picker, settings as README
+#   bash bench/gpu_check.sh door-sweep MIN   the door's classifier sweep, 6 runs side by side: {5, 10, 100} steps
+#                                            per epoch x lr {1e-4, 3e-4} (issue 11; the paper: 5 steps was best)
 set -u
 phase=${1:-speed}
 minutes=${2:-6}
@@ -27,9 +29,27 @@ if [ "$phase" = speed ]; then
   exit 0
 fi
 
-# learn: three runs side by side, each stopped after MINUTES (the pusher at its first 90% evaluation)
 runs=bench/out/gpu
 mkdir -p "$runs"
+collect() {  # what comes back: each run's curve, summary and the end of its learner log, in one archive
+  for run in "$runs"/*/; do tail -n 40 "$run/learn.log" > "$run/learn-tail.log" 2>/dev/null; done
+  tar czf "$OUT/runs.tar.gz" "$runs"/*/curve.csv "$runs"/*/curve.png "$runs"/*/summary.json "$runs"/*/learn-tail.log
+}
+if [ "$phase" = door-sweep ]; then
+  for steps in 5 10 100; do
+    for lr in 1e-4 3e-4; do
+      python3 bench/learn.py --task door --algorithm vice_raq --seed 0 --max-minutes "$minutes" --total-steps 200000 \
+        --query-every 10000 --query-budget 20 --set device="${DEVICE:-cuda}" replay_pipeline=device num_envs=4 \
+        classifier_steps=$steps classifier_lr=$lr --out "$runs/door-c${steps}-lr${lr}" > "$OUT/door-c${steps}-lr${lr}.txt" 2>&1 &
+    done
+  done
+  wait
+  collect
+  tail -n 2 "$OUT"/door-*.txt
+  exit 0
+fi
+
+# learn: three runs side by side, each stopped after MINUTES (the pusher at its first 90% evaluation)
 device=${DEVICE:-cuda}  # (DEVICE=cpu with replay_pipeline=device tries the whole phase on a machine without a GPU)
 common=(--seed 0 --max-minutes "$minutes")
 python3 bench/learn.py --task pusher --algorithm vice_raq "${common[@]}" --total-steps 100000 \
@@ -42,8 +62,5 @@ python3 bench/learn.py --task picker --algorithm vice_raq "${common[@]}" --total
   --query-budget 300 --set device="$device" replay_pipeline=device \
   --out "$runs/picker-vice_raq-seed0" > "$OUT/picker.txt" 2>&1 &
 wait
-for run in "$runs"/*/; do
-  tail -n 40 "$run/learn.log" > "$run/learn-tail.log" 2>/dev/null
-done
-tar czf "$OUT/runs.tar.gz" "$runs"/*/curve.csv "$runs"/*/curve.png "$runs"/*/summary.json "$runs"/*/learn-tail.log
+collect
 tail -n 3 "$OUT"/pusher.txt "$OUT"/door.txt "$OUT"/picker.txt
