@@ -143,10 +143,9 @@ def measure_device_pipeline(
     reward_model.goals = rng.integers(0, 256, size=(10, config.image_size, config.image_size, 3), dtype=np.uint8)
     replay = filled_replay(config, transitions, rng)
     pipeline = DeviceUpdates(
-        config, agent=agent, replay=replay, reward_model=reward_model, spec=ALGORITHM_SPECS[config.algorithm], rng=rng
+        config, agent=agent, replay=replay, reward_model=reward_model, spec=ALGORITHM_SPECS[config.algorithm], rng=rng,
+        graphs=graphs,
     )  # fmt: skip
-    if not graphs:
-        pipeline.sac_graph.failure = pipeline.classifier_graph.failure = "eager on purpose (benchmark)"
     per_block = max(1, round(config.classifier_steps * updates / (config.epoch_steps * config.updates_per_step)))
     for _ in range(GRAPH_WARMUP_CALLS + 2):  # warm-up, capture and a first replay of both graphs
         pipeline.classifier_step(accuracy=False)

@@ -104,7 +104,7 @@ def main() -> int:
         print(f"  f_psi on success states {logits[success].mean() if success.any() else float('nan'):+.2f}, "
               f"others {logits[~success].mean():+.2f}")  # fmt: skip
         print(f"  f_psi by distance bin: {by_bin}")
-        tenth = config.episode_steps // 10
+        tenth = max(1, config.episode_steps // 10)
         by_time = " ".join(f"{logits[data['step'] // tenth == t].mean():+.1f}" for t in range(10))
         print(f"  f_psi by tenth of the episode: {by_time}")
     env.close()

@@ -93,8 +93,7 @@ class TrainConfig:
     initial_random_steps: int = 1000
     """Uniform random actions before the policy acts (and before updates start)."""
     num_envs: int = 1
-    """Training envs stepped in lockstep: the policy acts for all in one batch (one forward pass per num_envs env
-    steps), then each env's step is one step of the loop with its updates_per_step updates."""
+    """Training envs in lockstep: the policy acts for all in one batch; each env step is one loop step."""
     updates_per_step: int = 1
     """Gradient steps per environment step."""
     replay_capacity: int = 200_000
@@ -118,11 +117,9 @@ class TrainConfig:
     device: str = "cpu"
     """Torch device: "cpu", "cuda" or "cuda:N", a GPU this host has."""
     compile_updates: bool = False
-    """Device pipeline: fuse the SAC update's and the classifier step's kernels with torch.compile before they are
-    captured as CUDA graphs (fewer, larger kernels; compiling takes tens of seconds at the start of a run)."""
+    """Device pipeline only: torch.compile the update and the classifier step before graph capture."""
     replay_pipeline: Literal["auto", "host", "device"] = "auto"
-    """Where replay batches are sampled, shifted and rewarded: host (numpy, cached f_psi rewards) or device (a
-    copy of the replay on `device`, f_psi(s') in each update, CUDA graphs on a GPU); auto: device on a GPU."""
+    """Batches sampled and rewarded on the host (numpy, cached f_psi) or device (CUDA graphs); auto: GPU."""
 
     # --- reward classifier f_psi
     classifier_lr: float = 3e-4
@@ -136,8 +133,7 @@ class TrainConfig:
     mixup_alpha: float = 1.0
     """Mixup lambda ~ Beta(alpha, alpha); 0 disables mixup."""
     no_answer_share: float = 0.0
-    """VICE-RAQ: share of each classifier step's negatives drawn from the observations answered no (once there is
-    one), to unlearn the false positives the queries found; 0: the paper's (they are replay negatives like any)."""
+    """VICE-RAQ: share of classifier negatives drawn from "no" answers; 0: the paper's (replay only)."""
     naive_classifier_steps: int = 10_000
     """naive_classifier: gradient steps of its one-off training after the first epoch."""
     raq_initial_negatives: int = 2000

@@ -103,6 +103,7 @@ class Evaluator:
             if not running or self.control.interrupted:
                 break
             actions = self.agent.act_batch(np.stack([episodes[index].obs for index in running]), deterministic=True)
+            self.control.tick()  # (a long evaluation keeps the run's heartbeat)
             for index, action in zip(running, actions, strict=True):
                 env, episode = self.envs[index], episodes[index]
                 raw, reward, terminated, truncated, info = env.step(scale_action(action, self.action_space))

@@ -2,8 +2,9 @@
 
 A transition (s, a, s', d, success(s')) points at two frame slots; s' of one step is s of the next, so a frame
 is stored once (about 1 + 1/T frames per transition for episodes of length T). Each transition adds at most
-two frames (its s' and, after a reset, its s), so a frame ring twice the transition capacity never overwrites
-a frame a live transition uses. np.zeros is lazily committed, so the unused part costs no memory.
+two frames (its s' and, after a reset, its s), and with `envs` envs in lockstep an env's s was stored at most
+2 (envs - 1) frames before its transition, so a frame ring of 2 capacity + 2 envs never overwrites a frame a
+live transition uses. np.zeros is lazily committed, so the unused part costs no memory.
 """
 
 from dataclasses import dataclass
@@ -62,11 +63,11 @@ def shift_pad(image_size: int) -> int:
 
 
 class ReplayBuffer:
-    """Transitions in a ring of `capacity`; frames in a ring of 2 * capacity + 2."""
+    """Transitions in a ring of `capacity`; frames in a ring of 2 * capacity + 2 * envs."""
 
-    def __init__(self, capacity: int, image_shape: tuple[int, int, int], action_dim: int) -> None:
+    def __init__(self, capacity: int, image_shape: tuple[int, int, int], action_dim: int, envs: int = 1) -> None:
         self.capacity = capacity
-        self.frame_capacity = 2 * capacity + 2
+        self.frame_capacity = 2 * capacity + 2 * envs
         self.frames = np.zeros((self.frame_capacity, *image_shape), dtype=np.uint8)
         self.obs_slot = np.zeros(capacity, dtype=np.int64)
         self.next_slot = np.zeros(capacity, dtype=np.int64)
@@ -128,6 +129,7 @@ class ReplayBuffer:
         frames = min(self.frames_added, self.frame_capacity)
         return {
             "capacity": self.capacity,
+            "frame_capacity": self.frame_capacity,
             "frames": torch.from_numpy(self.frames[:frames]),
             "obs_slot": torch.from_numpy(self.obs_slot[:used]),
             "next_slot": torch.from_numpy(self.next_slot[:used]),
@@ -141,6 +143,11 @@ class ReplayBuffer:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         if state["capacity"] != self.capacity:
             raise ValueError(f"checkpoint replay capacity {state['capacity']} != {self.capacity}")
+        saved_ring = int(state.get("frame_capacity", 2 * self.capacity + 2))  # (before num_envs: one env's ring)
+        if saved_ring != self.frame_capacity:  # frame slots are positions in the saved ring
+            raise ValueError(
+                f"checkpoint frame ring of {saved_ring} frames != {self.frame_capacity}: the run's num_envs changed"
+            )
         frames = state["frames"].numpy()
         self.frames[: len(frames)] = frames
         used = len(state["obs_slot"])

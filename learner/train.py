@@ -19,6 +19,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import gymnasium
 import numpy as np
 import torch
 from PIL import Image, ImageOps
@@ -104,7 +105,7 @@ class Trainer:
         self.action_space = check_action_space(self.env)
         self.action_dim = int(self.action_space.shape[0])
         self.agent = SACAgent(config, self.action_dim)
-        self.replay = ReplayBuffer(config.replay_capacity, (size, size, 3), self.action_dim)
+        self.replay = ReplayBuffer(config.replay_capacity, (size, size, 3), self.action_dim, envs=config.num_envs)
         self.reward_model = RewardModel(config, self.rng) if self.spec.classifier else None
         self.queries: QueryChannel | None = None
         if self.spec.queries and self.reward_model is not None:
@@ -132,7 +133,7 @@ class Trainer:
         if resumed is None:
             return self._stop_or_lost()
         for index, episode in enumerate(self.episodes):
-            self._begin_episode(episode, seed=None if resumed else cfg.seed + index)
+            self._begin_episode(episode, seed=None if resumed else env_seed(cfg.seed, index))
         if resumed:
             self._redo_interrupted_work()
         self.control.set_phase(self._loop_phase())
@@ -276,7 +277,7 @@ class Trainer:
         episode.length, episode.total = 0, 0.0
         self._observe(episode.env, episode.obs, info, success_of(info))
 
-    def _observe(self, env: Any, image: np.ndarray, info: dict[str, Any], success: float | None) -> None:
+    def _observe(self, env: gymnasium.Env, image: np.ndarray, info: dict[str, Any], success: float | None) -> None:
         """Offer a new observation to the query channel; its display render is of this same state: rendered now
         if it is kept, or later from a snapshot of the state when the env can take one (then scored in a batch)."""
         if self.queries is None or not self.queries.budget_left:
@@ -478,7 +479,7 @@ class Trainer:
         env_states = state["rng"].get("envs") or [state["rng"]["env"]]
         for index, (episode, env_state) in enumerate(zip(self.episodes, env_states, strict=False)):
             if env_state is not None:
-                episode.env.reset(seed=self.config.seed + index)  # creates the env's generator
+                episode.env.reset(seed=env_seed(self.config.seed, index))  # creates the env's generator
                 episode.env.unwrapped.np_random.bit_generator.state = env_state
 
     # ================================================================== goals
@@ -503,11 +504,19 @@ class Trainer:
         self.control.event(f"loaded {len(goals)} goal examples{note}")
 
 
+def env_seed(seed: int, index: int) -> int:
+    """The first reset seed of training env `index`: the run's seed for the first, and for the others seeds drawn
+    from (seed, index), so that runs with nearby seeds do not share env streams."""
+    if index == 0:
+        return seed
+    return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
+
+
 @dataclass
 class EnvEpisode:
     """A training env and its current episode: the last observation, its replay slot, length and reward sum."""
 
-    env: Any
+    env: gymnasium.Env
     obs: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3), dtype=np.uint8))
     obs_slot: int = 0
     length: int = 0

@@ -35,7 +35,9 @@ class MetricSums:
 
     def add(self, metrics: dict[str, Any]) -> None:
         if not self.sums:
-            self.sums = {name: value.clone() if torch.is_tensor(value) else value for name, value in metrics.items()}
+            self.sums = {
+                name: value.float().clone() if torch.is_tensor(value) else value for name, value in metrics.items()
+            }
         elif all(torch.is_tensor(value) for value in self.sums.values()):
             torch._foreach_add_(list(self.sums.values()), [metrics[name] for name in self.sums])
         else:
@@ -60,9 +62,10 @@ class GraphedCall:
     without running, so the capturing call replays too); the returned tensors are the graph's static outputs,
     overwritten by the next call. Off CUDA, or after a failed capture (`failure` says why), fn() runs eagerly."""
 
-    def __init__(self, fn: Callable[[], Any], device: torch.device) -> None:
+    def __init__(self, fn: Callable[[], Any], device: torch.device, enabled: bool = True) -> None:
         self.fn = fn
         self.device = device
+        self.enabled = enabled
         self.calls = 0
         self.graph: torch.cuda.CUDAGraph | None = None
         self.output: Any = None
@@ -71,7 +74,7 @@ class GraphedCall:
 
     @property
     def eager(self) -> bool:
-        return self.device.type != "cuda" or self.failure is not None
+        return not self.enabled or self.device.type != "cuda" or self.failure is not None
 
     def __call__(self) -> Any:
         if self.eager:
@@ -198,9 +201,10 @@ class DeviceUpdates:
 
     def __init__(
         self, config: TrainConfig, *, agent: SACAgent, replay: ReplayBuffer, reward_model: RewardModel | None,
-        spec: AlgorithmSpec, rng: np.random.Generator,
+        spec: AlgorithmSpec, rng: np.random.Generator, graphs: bool = True,
     ) -> None:  # fmt: skip
         self.config, self.agent, self.reward_model, self.spec = config, agent, reward_model, spec
+        self.graphs = graphs and agent.device.type == "cuda"
         self.host = HostUpdates(config, agent=agent, replay=replay, reward_model=reward_model, spec=spec, rng=rng)
         self.device = agent.device
         self.replay = DeviceReplay(replay, self.device)
@@ -208,8 +212,8 @@ class DeviceUpdates:
         self.metrics = MetricSums()
         self.sac_step = self._compiled(self._sac_update_on_device)
         self.classifier_step_fn = self._compiled(self._classifier_step_on_device)
-        self.sac_graph = GraphedCall(self.sac_step, self.device)
-        self.classifier_graph = GraphedCall(self.classifier_step_fn, self.device)
+        self.sac_graph = GraphedCall(self.sac_step, self.device, enabled=self.graphs)
+        self.classifier_graph = GraphedCall(self.classifier_step_fn, self.device, enabled=self.graphs)
         spare = config.query_budget + 1
         self.positives = DeviceExamples(self.device, spare)
         self.pool_negatives = DeviceExamples(self.device, spare)
@@ -220,7 +224,7 @@ class DeviceUpdates:
         return torch.compile(fn) if self.config.compile_updates else fn
 
     def describe(self) -> str:
-        graphs = "CUDA graphs" if self.device.type == "cuda" else "eager (no CUDA)"
+        graphs = "CUDA graphs" if self.graphs else "eager" + ("" if self.device.type == "cuda" else " (no CUDA)")
         if self.config.compile_updates:
             graphs = f"torch.compile + {graphs}"
         failures = [f"{name}: {g.failure}" for name, g in (("SAC", self.sac_graph), ("f_psi", self.classifier_graph))
@@ -262,7 +266,7 @@ class DeviceUpdates:
         elif no_answer_count(self.config):
             replaced |= self.no_answers.sync(model.answered_negatives)
         if replaced and self.classifier_graph.graph is not None:  # the old storage is in the graph: capture anew
-            self.classifier_graph = GraphedCall(self.classifier_step_fn, self.device)
+            self.classifier_graph = GraphedCall(self.classifier_step_fn, self.device, enabled=self.graphs)
         self.classifier_graph()
         model.version += 1  # (a graph replay runs no Python)
         return {}

@@ -42,7 +42,7 @@ def test_device_replay_mirrors_the_host_buffer_through_a_ring_wrap() -> None:
     rng = np.random.default_rng(0)
     replay = ReplayBuffer(50, (SIZE, SIZE, 3), 2)
     mirror = DeviceReplay(replay, CPU)
-    for count in (10, 30, 45):  # 85 transitions in all: the transition and frame rings wrap
+    for count in (10, 30, 45, 40):  # 125 transitions and 145 frames in all: both rings (50 and 102) wrap
         filled(replay, count, rng)
         mirror.sync()
         used = len(replay)
@@ -126,21 +126,22 @@ def test_device_updates_train_like_host_updates(algorithm: str) -> None:
     actor_before = [p.detach().clone() for p in agent.actor.parameters()]
     for _ in range(3):
         updates.sac_update()
+    assert any(not torch.equal(a, p) for a, p in zip(actor_before, agent.actor.parameters(), strict=True))
+    for _ in range(3):
         host.sac_update()
     device_metrics, host_metrics = updates.take_metrics(), host.take_metrics()
     assert set(device_metrics) == set(host_metrics)
     assert all(np.isfinite(v) for v in device_metrics.values())
     assert updates.take_metrics() == {}  # taken: a fresh start
-    assert any(not torch.equal(a, p) for a, p in zip(actor_before, agent.actor.parameters(), strict=True))
     if model is None:
         return
     weights = [p.detach().clone() for p in model.net.parameters()]
     version = model.version
-    assert updates.classifier_step(accuracy=False) == {}
+    assert updates.classifier_step(accuracy=False) == {}  # a device step alone moves f_psi
+    assert any(not torch.equal(a, p) for a, p in zip(weights, model.net.parameters(), strict=True))
     last = updates.classifier_step(accuracy=True)
     assert model.version == version + 2
     assert {"reward/loss", "reward/acc_goal", "reward/acc_replay"} <= set(last)
-    assert any(not torch.equal(a, p) for a, p in zip(weights, model.net.parameters(), strict=True))
     model.add_positive(rng.integers(0, 256, (SIZE, SIZE, 3), dtype=np.uint8))  # an answer: the set grows
     updates.classifier_step(accuracy=False)
     assert updates.positives.synced == 5 and updates.positives.count.item() == 5

@@ -530,4 +530,23 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
     assert batches.count(3) >= (200 - config.initial_random_steps) // 3 - 2 and batches.count(2) > 0
     state = load_checkpoint(checkpoint_path(settings.checkpoint_dir, run_id))
     assert len(state["rng"]["envs"]) == 3 and state["rng"]["envs"][0] == state["rng"]["env"]
-    assert len({json.dumps(s, default=str) for s in state["rng"]["envs"]}) == 3  # seeds cfg.seed + index
+    assert len({json.dumps(s, default=str) for s in state["rng"]["envs"]}) == 3  # each env its own stream
+    assert trainer.replay.frame_capacity == 2 * config.replay_capacity + 2 * 3
+    resumed = Trainer(
+        config, store=store, run_id=run_id, worker="w2", goal_set_id=goal_set_id,
+        checkpoint_file=checkpoint_path(settings.checkpoint_dir, run_id),
+    )  # fmt: skip
+    try:
+        resumed._restore(state)  # every env continues its own generator
+        assert [e.env.unwrapped.np_random.bit_generator.state for e in resumed.episodes] == state["rng"]["envs"]
+    finally:
+        resumed.close()
+    other = Trainer(
+        replace(config, num_envs=2), store=store, run_id=run_id, worker="w3", goal_set_id=goal_set_id,
+        checkpoint_file=checkpoint_path(settings.checkpoint_dir, run_id),
+    )  # fmt: skip
+    try:
+        with pytest.raises(ValueError, match="num_envs changed"):
+            other._restore(state)
+    finally:
+        other.close()
