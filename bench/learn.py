@@ -82,6 +82,42 @@ def reached_success(store: Store, run_id: int, rate: float, after_step: int = 0)
     return any(m.value >= rate for m in metrics)
 
 
+def watch(
+    store: Store, run_id: int, learner: subprocess.Popen, args: argparse.Namespace, started: float, resumed_at: int
+) -> str | None:
+    """Report progress every minute until the learner ends or a stop condition holds (then stop the run and say
+    which); None when the learner ended by itself."""
+    next_report = time.monotonic() + 60
+    while learner.poll() is None:
+        stop_reason = None
+        if time.monotonic() - started > args.max_minutes * 60:
+            stop_reason = f"time limit of {args.max_minutes} min reached"
+        elif args.stop_at_success is not None and reached_success(
+            store, run_id, args.stop_at_success, after_step=resumed_at
+        ):
+            stop_reason = f"eval success rate reached {args.stop_at_success}"
+        elif args.until_step is not None and int(store.get_run(run_id=run_id).step or 0) >= args.until_step:
+            stop_reason = f"env step {args.until_step} reached"
+        if stop_reason:
+            print(f"{stop_reason}: stopping the run", flush=True)
+            store.request_stop(run_id=run_id)
+            learner.wait(timeout=300)
+            return stop_reason
+        if time.monotonic() >= next_report:
+            rows = curve_rows(store, run_id)
+            last = rows[-1] if rows else {}
+            print(
+                f"[{(time.monotonic() - started) / 60:5.1f} min] step {store.get_run(run_id=run_id).step:>7,}"
+                f"  success {last.get('eval/success_rate', float('nan')):.2f}"
+                f"  queries {last.get('queries/asked', 0):.0f} (yes {last.get('queries/yes', 0):.0f})"
+                f"  updates/s {last.get('perf/updates_per_second', float('nan')):.1f}",
+                flush=True,
+            )
+            next_report = time.monotonic() + 60
+        time.sleep(2)
+    return None
+
+
 def _interrupt(signum: int, _frame: object) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
@@ -175,33 +211,13 @@ def main() -> int:
         processes.append(subprocess.Popen(raq + oracle_args, env=env, stdout=logs["oracle"], stderr=subprocess.STDOUT))
         learner = subprocess.Popen(raq + ["learn", "--once"], env=env, stdout=logs["learn"], stderr=subprocess.STDOUT)
         processes.append(learner)
-        next_report = time.monotonic() + 60
-        while learner.poll() is None:
-            if time.monotonic() - started > args.max_minutes * 60:
-                stop_reason = f"time limit of {args.max_minutes} min reached"
-            elif args.stop_at_success is not None and reached_success(
-                store, run.id, args.stop_at_success, after_step=resumed_at
-            ):
-                stop_reason = f"eval success rate reached {args.stop_at_success}"
-            elif args.until_step is not None and int(store.get_run(run_id=run.id).step or 0) >= args.until_step:
-                stop_reason = f"env step {args.until_step} reached"
-            if stop_reason:
-                print(f"{stop_reason}: stopping the run", flush=True)
-                store.request_stop(run_id=run.id)
-                learner.wait(timeout=300)
-                break
-            if time.monotonic() >= next_report:
-                rows = curve_rows(store, run.id)
-                last = rows[-1] if rows else {}
-                print(
-                    f"[{(time.monotonic() - started) / 60:5.1f} min] step {store.get_run(run_id=run.id).step:>7,}"
-                    f"  success {last.get('eval/success_rate', float('nan')):.2f}"
-                    f"  queries {last.get('queries/asked', 0):.0f} (yes {last.get('queries/yes', 0):.0f})"
-                    f"  updates/s {last.get('perf/updates_per_second', float('nan')):.1f}",
-                    flush=True,
-                )
-                next_report = time.monotonic() + 60
-            time.sleep(2)
+        try:
+            stop_reason = watch(store, run.id, learner, args, started, resumed_at)
+        except KeyboardInterrupt as interrupt:  # SIGTERM or Ctrl-C: stop the run, then write its curve and summary
+            stop_reason = f"interrupted ({interrupt})"
+            print(f"{stop_reason}: stopping the run", flush=True)
+            store.request_stop(run_id=run.id)
+            learner.wait(timeout=300)
     finally:
         for process in processes:
             if process.poll() is None:
