@@ -72,14 +72,21 @@ def machine_line() -> str:
     )
 
 
-def measure(config: TrainConfig, updates: int, transitions: int, blocks: int) -> tuple[float, dict[str, float]]:
-    """(updates per second, milliseconds per update by part) of the best of `blocks` timed blocks."""
+def learner_parts(
+    config: TrainConfig, transitions: int
+) -> tuple[np.random.Generator, SACAgent, RewardModel, ReplayBuffer]:
+    """Seeded generator, agent, f_psi with 10 random goal images, and a filled replay buffer."""
     rng = np.random.default_rng(0)
     torch.manual_seed(0)
     agent = SACAgent(config, action_dim=2)
     reward_model = RewardModel(config, rng)
     reward_model.goals = rng.integers(0, 256, size=(10, config.image_size, config.image_size, 3), dtype=np.uint8)
-    replay = filled_replay(config, transitions, rng)
+    return rng, agent, reward_model, filled_replay(config, transitions, rng)
+
+
+def measure(config: TrainConfig, updates: int, transitions: int, blocks: int) -> tuple[float, dict[str, float]]:
+    """(updates per second, milliseconds per update by part) of the best of `blocks` timed blocks."""
+    rng, agent, reward_model, replay = learner_parts(config, transitions)
     pad = shift_pad(config.image_size) if config.augmentation == "random_shift" else 0
     device = agent.device
     updates_per_epoch = config.epoch_steps * config.updates_per_step
@@ -136,12 +143,7 @@ def measure_device_pipeline(
 ) -> tuple[float, str]:
     """(updates per second, how it ran) of the device pipeline: as the loop does it, a classifier burst (all but
     its last step as graphs) then `updates` SAC updates; `graphs=False` runs the same functions eagerly."""
-    rng = np.random.default_rng(0)
-    torch.manual_seed(0)
-    agent = SACAgent(config, action_dim=2)
-    reward_model = RewardModel(config, rng)
-    reward_model.goals = rng.integers(0, 256, size=(10, config.image_size, config.image_size, 3), dtype=np.uint8)
-    replay = filled_replay(config, transitions, rng)
+    rng, agent, reward_model, replay = learner_parts(config, transitions)
     pipeline = DeviceUpdates(
         config, agent=agent, replay=replay, reward_model=reward_model, spec=ALGORITHM_SPECS[config.algorithm], rng=rng,
         graphs=graphs,
