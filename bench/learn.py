@@ -157,8 +157,8 @@ def main() -> int:
     data_dir = out / "data"
     if data_dir.exists() and not args.resume:
         raise SystemExit(f"{data_dir} exists: remove it, choose another --out or --resume it")
-    if args.resume and not (out / "summary.json").exists():
-        raise SystemExit(f"nothing to resume in {out}: no summary.json")
+    if args.resume and not (data_dir / "raq.sqlite3").exists():
+        raise SystemExit(f"nothing to resume in {out}: no {data_dir / 'raq.sqlite3'}")
     config = TrainConfig(
         env_id=TASKS[args.task], algorithm=args.algorithm, seed=args.seed, total_steps=args.total_steps,
         query_every=args.query_every, query_budget=args.query_budget, **parse_overrides(args.set),
@@ -178,7 +178,8 @@ def main() -> int:
         run = store.list_runs()[0]
         if run.status != "queued":
             run = store.resume_run(run_id=run.id)
-        earlier_minutes = float(json.loads((out / "summary.json").read_text())["wall_minutes"])
+        earlier = out / "summary.json"  # (absent when the earlier run was killed before writing it)
+        earlier_minutes = float(json.loads(earlier.read_text())["wall_minutes"]) if earlier.exists() else 0.0
     else:
         goal_set_id = add_simulated_goal_set(store, task=args.task, name=f"{args.task} goals", count=args.goals)
         run = store.create_run(
