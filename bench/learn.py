@@ -25,6 +25,7 @@ from app.demo import add_simulated_goal_set  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
 from app.store import Store  # noqa: E402
 from bench.plot import line_plot  # noqa: E402
+from bench.processes import stop_all  # noqa: E402
 from learner.config import TrainConfig  # noqa: E402
 from sim import TASKS  # noqa: E402
 
@@ -220,14 +221,7 @@ def main() -> int:
             store.request_stop(run_id=run.id)
             learner.wait(timeout=300)
     finally:
-        for process in processes:
-            if process.poll() is None:
-                process.send_signal(signal.SIGINT)
-        for process in processes:
-            try:
-                process.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                process.kill()
+        stop_all(processes, signal.SIGINT, timeout=60)
         for log in logs.values():
             log.close()
     wall_seconds = time.monotonic() - started

@@ -45,6 +45,7 @@ sys.path.insert(0, str(ROOT))
 
 from app.migrate import upgrade  # noqa: E402
 from app.store import QueryStatus, RunStatus, Store  # noqa: E402
+from bench.processes import stop_all  # noqa: E402
 from learner import testing_envs  # noqa: E402
 from learner.config import TrainConfig  # noqa: E402
 from learner.envs import encode_png  # noqa: E402
@@ -265,13 +266,7 @@ def bench(backend: str, args: argparse.Namespace) -> dict:
             steps_after = sum(store.get_run(run_id=r).step for r in run_ids)
             asked = store.count_queries() - asked_before
         finally:
-            for learner in learners:
-                learner.send_signal(signal.SIGTERM)
-            for learner in learners:
-                try:
-                    learner.wait(timeout=120)
-                except subprocess.TimeoutExpired:
-                    learner.kill()
+            stop_all(learners, signal.SIGTERM, timeout=120)
             server.terminate()
             server.wait(timeout=30)
         answers = [r for r in records if r[0] == "answer"]
