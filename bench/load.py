@@ -34,6 +34,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -44,7 +45,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from app.migrate import upgrade  # noqa: E402
-from app.store import QueryStatus, RunStatus, Store  # noqa: E402
+from app.store import INT32_MAX, QueryStatus, RunStatus, Store  # noqa: E402
 from bench.processes import stop_all  # noqa: E402
 from learner import testing_envs  # noqa: E402
 from learner.config import TrainConfig  # noqa: E402
@@ -171,22 +172,24 @@ def start_learner(url: str, data_dir: Path, name: str, nice: int) -> subprocess.
 
 
 # ---------------------------------------------------------------- labelling clients
-def _client(base: str, index: int, deadline: float, think: float, records: list) -> None:
+def _client(http: httpx.Client, index: int, deadline: float, think: float, records: list) -> None:
     rng = random.Random(index)
-    with httpx.Client(base_url=base, timeout=10) as http:
+    time.sleep(think * rng.uniform(0, 1))  # people do not all click in the same millisecond: start spread out
+    with http:
         while time.time() < deadline:
-            started = time.perf_counter()
+            started, at = time.perf_counter(), time.time()
             try:
                 response = http.get("/api/queries", params={"status": "pending", "limit": 20})
-                records.append(("list", time.perf_counter() - started, response.status_code, None, None))
+                records.append(("list", time.perf_counter() - started, response.status_code, None, None, at))
                 pending = response.json() if response.status_code == 200 else []
             except httpx.HTTPError as error:
-                records.append(("list", time.perf_counter() - started, f"error {type(error).__name__}", None, None))
+                status = f"error {type(error).__name__}"
+                records.append(("list", time.perf_counter() - started, status, None, None, at))
                 pending = []
             if pending:
                 query = rng.choice(pending)
                 success = (query.get("ground_truth_success") or 0.0) >= 0.5
-                started = time.perf_counter()
+                started, at = time.perf_counter(), time.time()
                 try:
                     response = http.post(
                         f"/api/queries/{query['id']}/answer", json={"success": success, "labeler": f"client-{index}"}
@@ -194,18 +197,22 @@ def _client(base: str, index: int, deadline: float, think: float, records: list)
                     status: int | str = response.status_code
                 except httpx.HTTPError as error:
                     status = f"error {type(error).__name__}"
-                records.append(("answer", time.perf_counter() - started, status, query["id"], success))
+                records.append(("answer", time.perf_counter() - started, status, query["id"], success, at))
             time.sleep(think * rng.uniform(0.5, 1.5))
 
 
 def _client_process(
     base: str, indices: list[int], duration: float, think: float, out: mp.Queue, ready: mp.Queue, go: mp.Event
 ) -> None:
+    clients = [httpx.Client(base_url=base, timeout=10) for _ in indices]  # made before the clock starts
     ready.put(os.getpid())
     go.wait()
     deadline = time.time() + duration
     records: list = []
-    threads = [threading.Thread(target=_client, args=(base, i, deadline, think, records)) for i in indices]
+    threads = [
+        threading.Thread(target=_client, args=(http, i, deadline, think, records))
+        for http, i in zip(clients, indices, strict=True)
+    ]
     for thread in threads:
         thread.start()
     for thread in threads:
@@ -213,8 +220,25 @@ def _client_process(
     out.put(records)
 
 
+def warm_up(base: str, clients: int) -> None:
+    """The server's first requests build its routes' validators, compile the store's SQL and open its pooled
+    database connections (PostgreSQL: a backend process each): seconds on a loaded machine, once per server
+    process. Make them, from as many clients at once as will label, before the measured clients start. Stores
+    nothing (the answer goes to a query that does not exist)."""
+
+    def visit(_: int) -> None:
+        with httpx.Client(base_url=base, timeout=60) as http:
+            http.get("/api/queries", params={"status": "pending", "limit": 20}).raise_for_status()
+            http.get("/api/queries/next").raise_for_status()
+            response = http.post(f"/api/queries/{INT32_MAX}/answer", json={"success": True, "labeler": "warm-up"})
+            assert response.status_code == 404, response.text
+
+    with ThreadPoolExecutor(max_workers=clients) as pool:
+        list(pool.map(visit, range(clients)))
+
+
 def label(base: str, clients: int, processes: int, duration: float, think: float) -> tuple[list, float]:
-    """The clients' records (kind, seconds, status, query id, answer) and the seconds they ran."""
+    """The clients' records (kind, seconds, status, query id, answer, time sent) and the seconds they ran."""
     context = mp.get_context("spawn")
     out: mp.Queue = context.Queue()
     ready: mp.Queue = context.Queue()
@@ -243,6 +267,15 @@ def percentile(values: list[float], q: float) -> float:
     return float(np.percentile(values, q) * 1000) if values else float("nan")
 
 
+def slowest(answers: list, records: list, share: float = 0.01) -> list[list[float]]:
+    """The slowest 1% of answers as [seconds into the labelling, ms]: a burst or a steady tail."""
+    if not answers:
+        return []
+    start = min(r[5] for r in records)
+    worst = sorted(answers, key=lambda r: r[1])[-max(1, round(share * len(answers))) :]
+    return sorted([round(r[5] - start, 1), round(r[1] * 1000)] for r in worst)
+
+
 def bench(backend: str, args: argparse.Namespace) -> dict:
     base_dir = Path(tempfile.mkdtemp(prefix=f"raq-load-{backend}-"))
     with contextmanager_for(backend, base_dir, args) as url:
@@ -262,6 +295,7 @@ def bench(backend: str, args: argparse.Namespace) -> dict:
                 time.sleep(0.5)
             steps_before = sum(store.get_run(run_id=r).step for r in run_ids)
             asked_before = store.count_queries()
+            warm_up(base, args.clients)
             records, elapsed = label(base, args.clients, args.client_processes, args.duration, args.think)
             steps_after = sum(store.get_run(run_id=r).step for r in run_ids)
             asked = store.count_queries() - asked_before
@@ -273,7 +307,7 @@ def bench(backend: str, args: argparse.Namespace) -> dict:
         acknowledged = [r for r in answers if r[2] == 200]
         errors = [r for r in records if r[2] != 200]
         lost = 0
-        for _, _, _, query_id, success in acknowledged:
+        for _, _, _, query_id, success, _ in acknowledged:
             query = store.get_query(query_id=query_id)
             lost += query.status != QueryStatus.ANSWERED or query.answer != success
         answered_ids = {r[3] for r in acknowledged}
@@ -286,6 +320,7 @@ def bench(backend: str, args: argparse.Namespace) -> dict:
         "answers": len(acknowledged), "answers_per_s": round(len(acknowledged) / elapsed, 1),
         "answer_p50_ms": round(percentile([r[1] for r in answers], 50), 1),
         "answer_p99_ms": round(percentile([r[1] for r in answers], 99), 1),
+        "slowest_answers": slowest(answers, records),
         "all_p99_ms": round(percentile([r[1] for r in records], 99), 1),
         "errors": len(errors), "error_kinds": sorted({str(r[2]) for r in errors}), "lost": lost,
         "distinct_queries_answered": len(answered_ids), "read_by_learners": read,

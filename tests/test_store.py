@@ -1,7 +1,10 @@
 """The store both processes use: runs, claims, queries, answers, metrics, on a real SQLite file."""
 
 import multiprocessing as mp
+import threading
+import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 import sqlalchemy as sa
@@ -294,3 +297,68 @@ def test_two_processes_write_one_sqlite_file_at_once_without_database_is_locked(
     assert store.query_counts(run_id=run_id)["answered"] == 60
     seqs = [answer.answer_seq for answer in store.new_answers(run_id=run_id, since_seq=0)]
     assert seqs == sorted(set(seqs)) and len(seqs) == 60  # one total order of answers
+
+
+def _hold_write_lock(url: str, held: Any, seconds: float) -> None:
+    """Another process (a learner) in a write transaction for `seconds`."""
+    other = Store(url)
+    with other.writing() as session:
+        session.execute(text("UPDATE runs SET step = step + 1"))
+        held.set()
+        time.sleep(seconds)
+    other.dispose()
+
+
+def test_a_write_waits_for_another_process_write_lock_then_lands(store: Store, database_url: str) -> None:
+    run_id = make_run(store)
+    query_id = post(store, run_id)
+    held = mp.get_context("spawn").Event()
+    holder = mp.get_context("spawn").Process(target=_hold_write_lock, args=(database_url, held, 0.5))
+    holder.start()
+    assert held.wait(timeout=60)
+    started = time.monotonic()
+    store.answer_query(query_id=query_id, success=True, labeler="waited")  # would be "database is locked"
+    assert time.monotonic() - started >= 0.2  # it did wait for the other process's commit
+    holder.join(timeout=60)
+    assert store.get_query(query_id=query_id).answer is True
+    assert store.get_run(run_id=run_id).step == 1  # the other process's write landed too
+    with store.engine.connect() as connection:  # the wait polled with busy_timeout 0, then restored it
+        assert connection.execute(text("PRAGMA busy_timeout")).scalar() == 30000
+
+
+def test_many_threads_answering_while_a_learner_beats_all_land_numbered_in_order(
+    store: Store, database_url: str
+) -> None:
+    """As bench/load.py's labellers and learners on one SQLite file: every answer lands, answer_seq 1..N."""
+    run_id = make_run(store)
+    store.claim_next_run(worker="learner-a")
+    ids = [post(store, run_id, env_step=i) for i in range(60)]
+    learner = Store(database_url)  # its own connections, as the learner process has
+    barrier, failures, beats = threading.Barrier(13), [], []
+
+    def answer(chunk: list[int]) -> None:
+        barrier.wait()
+        for query_id in chunk:
+            try:
+                store.answer_query(query_id=query_id, success=query_id % 2 == 0, labeler="many")
+            except Exception as error:  # noqa: BLE001
+                failures.append(repr(error))
+
+    def beat() -> None:
+        barrier.wait()
+        for _ in range(30):
+            beats.append(learner.heartbeat(run_id=run_id, worker="learner-a"))
+
+    threads = [threading.Thread(target=answer, args=(ids[i::12],)) for i in range(12)]
+    threads.append(threading.Thread(target=beat))
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert failures == []
+    assert beats == [True] * 30
+    answers = learner.new_answers(run_id=run_id, since_seq=0)
+    assert [a.answer_seq for a in answers] == list(range(1, 61))
+    assert sorted(a.query_id for a in answers) == ids
+    assert all(a.success == (a.query_id % 2 == 0) for a in answers)
+    learner.dispose()
