@@ -5,6 +5,7 @@ import os
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
@@ -119,6 +120,35 @@ def goal_set_with_photo(client: TestClient) -> dict:
     )
     assert response.status_code == 201, response.text
     return goal_set
+
+
+def answer_at_once(
+    store: Store, query_ids: list[int], threads: int, *, alongside: Callable[[], None] | None = None
+) -> list[str]:
+    """Answer the queries from `threads` threads released together (yes for even ids), with `alongside` running
+    at the same moment in one more thread; returns the errors the answers raised."""
+    barrier, failures = threading.Barrier(threads + (alongside is not None)), []
+
+    def answer(chunk: list[int]) -> None:
+        barrier.wait()
+        for query_id in chunk:
+            try:
+                store.answer_query(query_id=query_id, success=query_id % 2 == 0, labeler="at once")
+            except Exception as error:  # noqa: BLE001
+                failures.append(repr(error))
+
+    def other() -> None:
+        barrier.wait()
+        assert alongside is not None
+        alongside()
+
+    workers = [threading.Thread(target=answer, args=(query_ids[i::threads],)) for i in range(threads)]
+    workers += [threading.Thread(target=other)] if alongside is not None else []
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join()
+    return failures
 
 
 def free_port() -> int:

@@ -12,7 +12,6 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -21,7 +20,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import free_port
+from conftest import answer_at_once, free_port
 from sqlalchemy import create_engine, text
 from test_learner_run import tiny_config
 from test_postgres import postgres_url  # noqa: F401  (the module's own PostgreSQL server)
@@ -270,22 +269,7 @@ def test_labellers_answering_different_queries_at_once_on_postgresql_all_succeed
     ids = [
         store.post_query(run_id=run_id, env_step=i, model_png=png, display_png=png, score=0.0).id for i in range(120)
     ]
-    barrier, failures = threading.Barrier(12), []
-
-    def answer(chunk: list[int]) -> None:
-        barrier.wait()
-        for query_id in chunk:
-            try:
-                store.answer_query(query_id=query_id, success=query_id % 2 == 0, labeler="bench")
-            except Exception as error:  # noqa: BLE001
-                failures.append(repr(error))
-
-    threads = [threading.Thread(target=answer, args=(ids[i::12],)) for i in range(12)]
-    for thread in threads:
-        thread.start()
-    for thread in threads:
-        thread.join()
-    assert failures == []
+    assert answer_at_once(store, ids, 12) == []
     answers = store.new_answers(run_id=run_id, since_seq=0)
     assert [a.answer_seq for a in answers] == list(range(1, 121))
     assert sorted(a.query_id for a in answers) == ids

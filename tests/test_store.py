@@ -1,13 +1,13 @@
 """The store both processes use: runs, claims, queries, answers, metrics, on a real SQLite file."""
 
 import multiprocessing as mp
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 import sqlalchemy as sa
+from conftest import answer_at_once
 from sqlalchemy import inspect, text
 
 from app.migrate import downgrade, upgrade
@@ -334,28 +334,12 @@ def test_many_threads_answering_while_a_learner_beats_all_land_numbered_in_order
     store.claim_next_run(worker="learner-a")
     ids = [post(store, run_id, env_step=i) for i in range(60)]
     learner = Store(database_url)  # its own connections, as the learner process has
-    barrier, failures, beats = threading.Barrier(13), [], []
-
-    def answer(chunk: list[int]) -> None:
-        barrier.wait()
-        for query_id in chunk:
-            try:
-                store.answer_query(query_id=query_id, success=query_id % 2 == 0, labeler="many")
-            except Exception as error:  # noqa: BLE001
-                failures.append(repr(error))
+    beats: list[bool] = []
 
     def beat() -> None:
-        barrier.wait()
-        for _ in range(30):
-            beats.append(learner.heartbeat(run_id=run_id, worker="learner-a"))
+        beats.extend(learner.heartbeat(run_id=run_id, worker="learner-a") for _ in range(30))
 
-    threads = [threading.Thread(target=answer, args=(ids[i::12],)) for i in range(12)]
-    threads.append(threading.Thread(target=beat))
-    for thread in threads:
-        thread.start()
-    for thread in threads:
-        thread.join()
-    assert failures == []
+    assert answer_at_once(store, ids, 12, alongside=beat) == []
     assert beats == [True] * 30
     answers = learner.new_answers(run_id=run_id, since_seq=0)
     assert [a.answer_seq for a in answers] == list(range(1, 61))
