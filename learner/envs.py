@@ -228,7 +228,13 @@ def decode_image(data: bytes, image_size: int) -> np.ndarray:
 
 
 def encode_gif(frames: list[np.ndarray], frame_ms: int = 80) -> bytes:
-    images = [Image.fromarray(frame) for frame in frames]
+    """An animated GIF, each frame on its own 256-colour palette. Fast octree without dithering: PIL's default
+    (median cut, Floyd-Steinberg) took 5.8 ms a 128 px frame, a quarter of an evaluation; this takes 0.7 ms and
+    is off by ~1/255 per channel on average."""
+    images = [
+        Image.fromarray(frame).quantize(colors=256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE)
+        for frame in frames
+    ]
     buffer = io.BytesIO()
     images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:], duration=frame_ms, loop=0)
     return buffer.getvalue()

@@ -43,7 +43,12 @@ def mixup(
         lam = gammas[0] / gammas.sum(0)
         perm = torch.argsort(torch.rand(count, device=device))
     lam = lam.to(images.dtype)  # bf16 images: the labels mix with the same (rounded) lambda
-    mixed_images = torch.lerp(images[perm], images, lam.view(-1, 1, 1, 1))
+    # Gathered and mixed in memory order: to_float's images are channels_last (NHWC in memory), where indexing
+    # the NCHW view took twice as long on a CPU (3.4 vs 1.6 ms for 256 48x48 images).
+    channels_last = images.dim() == 4 and images.is_contiguous(memory_format=torch.channels_last)
+    rows = images.permute(0, 2, 3, 1) if channels_last else images
+    mixed = torch.lerp(rows.index_select(0, perm), rows, lam.view(-1, *([1] * (rows.dim() - 1))))
+    mixed_images = mixed.permute(0, 3, 1, 2) if channels_last else mixed
     mixed_labels = torch.lerp(labels[perm], labels, lam.to(labels.dtype))
     return mixed_images, mixed_labels
 

@@ -1,14 +1,17 @@
 """Learner parts on small synthetic data: losses, mixup, the AIRL logit, replay, query selection."""
 
 import copy
+import io
 import math
 
 import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from PIL import Image
 
 from learner.config import TrainConfig
+from learner.envs import encode_gif
 from learner.networks import (
     _matmul_seconds,
     input_dtype,
@@ -457,3 +460,18 @@ def test_precision_auto_resolves_to_what_this_machine_runs_faster() -> None:
     assert out.dtype == (torch.bfloat16 if chosen == "bf16" else torch.float32)
     with pytest.raises(ValueError, match="unknown precision"):
         resolve_precision("fp16")
+
+
+def test_a_rollout_gif_holds_every_frame_in_order_close_to_its_colours() -> None:
+    rng = np.random.default_rng(0)
+    base = rng.integers(0, 256, size=(32, 3), dtype=np.uint8)  # a scene of few colours, as a render is
+    frames = [base[rng.integers(0, 32, size=(64, 64))] for _ in range(12)]
+    frames[5][:8, :8] = (255, 0, 0)  # a small detail in one frame survives the palette
+    gif = Image.open(io.BytesIO(encode_gif(frames, frame_ms=80)))
+    assert gif.n_frames == 12 and gif.info["duration"] == 80
+    for index, frame in enumerate(frames):
+        gif.seek(index)
+        decoded = np.asarray(gif.convert("RGB"), dtype=np.int16)
+        assert np.abs(decoded - frame).mean() < 2.0, index
+    gif.seek(5)
+    assert np.abs(np.asarray(gif.convert("RGB"), dtype=np.int16)[:8, :8] - (255, 0, 0)).max() <= 8
