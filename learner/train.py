@@ -98,8 +98,8 @@ class Trainer:
             for _ in range(config.num_envs)
         ]
         self.env = self.episodes[0].env
-        self.eval_envs = [
-            make_env(config.env_id, image_size=size, display_size=config.display_size)
+        self.eval_envs = [  # their renders are the rollout's frames only: drawn at that size (2 ms, not 5)
+            make_env(config.env_id, image_size=size, display_size=config.rollout_size)
             for _ in range(eval_env_count(config))
         ]
         self.action_space = check_action_space(self.env)
