@@ -12,6 +12,10 @@ machine's state:
     U = updates per second of the SAC updates alone (the bound: one update per env step);
     R = E / U, the share of the update bound the loop reaches.
 
+On the CPU it also prints the share of the loop's time spent in gradient steps with the classifier's epochs
+counted as well: R counts them as time outside the bound, like evaluation. Take `--steps` as a multiple of the
+epoch (1,000 env steps) so that each epoch's classifier training and evaluation count once per 1,000 steps.
+
 The last line reads `loop: E env steps/s end to end, U updates/s update-bound, ratio R`. Before it, the loop's
 time outside the updates is split by part (ms per env step).
 
@@ -168,6 +172,9 @@ def main() -> int:
     print("ms per env step: " + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.seconds.items()))
     other = elapsed - sum(timer.seconds.values())
     print(f"ms per env step outside the timed parts (replay, bookkeeping, heartbeats): {1000 * other / steps:.1f}")
+    if not args.device.startswith("cuda"):  # (on a GPU the time spent in the updates is not their cost)
+        training = update_seconds + timer.seconds["classifier epochs"]
+        print(f"share of the loop's time in gradient steps, the classifier's counted too: {training / elapsed:.2f}")
     print(f"loop: {e:.1f} env steps/s end to end, {u:.1f} updates/s update-bound, ratio {e / u:.2f}")
     return 0
 
