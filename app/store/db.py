@@ -35,7 +35,8 @@ def _begin_immediate(dbapi_connection: sqlite3.Connection) -> None:
                 dbapi_connection.execute("BEGIN IMMEDIATE")
                 return
             except sqlite3.OperationalError as error:
-                if error.sqlite_errorname not in ("SQLITE_BUSY", "SQLITE_LOCKED") or time.monotonic() > deadline:
+                busy = error.sqlite_errorname.startswith(("SQLITE_BUSY", "SQLITE_LOCKED"))  # or an extended code
+                if not busy or time.monotonic() > deadline:
                     raise
             time.sleep(pause)
             pause = min(2 * pause, SQLITE_LOCK_POLL_S[1])
