@@ -38,6 +38,7 @@ from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
+from typing import NamedTuple
 
 import httpx
 import numpy as np
@@ -173,7 +174,18 @@ def start_learner(url: str, data_dir: Path, name: str, nice: int) -> subprocess.
 
 
 # ---------------------------------------------------------------- labelling clients
-def _client(http: httpx.Client, index: int, deadline: float, think: float, records: list) -> None:
+class Record(NamedTuple):
+    """One request a client made."""
+
+    kind: str  # "list" or "answer"
+    seconds: float  # the round trip seen by the client
+    status: int | str  # HTTP status, or "error <transport error>"
+    query_id: int | None  # answers: the query answered, and the answer given
+    answer: bool | None
+    sent_at: float  # time.time() when sent
+
+
+def _client(http: httpx.Client, index: int, deadline: float, think: float, records: list[Record]) -> None:
     rng = random.Random(index)
     time.sleep(think * rng.uniform(0, 1))  # people do not all click in the same millisecond: start spread out
     with http:
@@ -181,11 +193,11 @@ def _client(http: httpx.Client, index: int, deadline: float, think: float, recor
             started, at = time.perf_counter(), time.time()
             try:
                 response = http.get("/api/queries", params={"status": "pending", "limit": 20})
-                records.append(("list", time.perf_counter() - started, response.status_code, None, None, at))
+                records.append(Record("list", time.perf_counter() - started, response.status_code, None, None, at))
                 pending = response.json() if response.status_code == 200 else []
             except httpx.HTTPError as error:
                 status = f"error {type(error).__name__}"
-                records.append(("list", time.perf_counter() - started, status, None, None, at))
+                records.append(Record("list", time.perf_counter() - started, status, None, None, at))
                 pending = []
             if pending:
                 query = rng.choice(pending)
@@ -198,7 +210,7 @@ def _client(http: httpx.Client, index: int, deadline: float, think: float, recor
                     status: int | str = response.status_code
                 except httpx.HTTPError as error:
                     status = f"error {type(error).__name__}"
-                records.append(("answer", time.perf_counter() - started, status, query["id"], success, at))
+                records.append(Record("answer", time.perf_counter() - started, status, query["id"], success, at))
             time.sleep(think * rng.uniform(0.5, 1.5))
 
 
@@ -211,7 +223,7 @@ def _client_process(
     ready.put(os.getpid())
     go.wait()
     deadline = time.time() + duration
-    records: list = []
+    records: list[Record] = []
     threads = [
         threading.Thread(target=_client, args=(http, i, deadline, think, records))
         for http, i in zip(clients, indices, strict=True)
@@ -240,8 +252,8 @@ def warm_up(base: str, clients: int) -> None:
         list(pool.map(visit, range(clients)))
 
 
-def label(base: str, clients: int, processes: int, duration: float, think: float) -> tuple[list, float]:
-    """The clients' records (kind, seconds, status, query id, answer, time sent) and the seconds they ran."""
+def label(base: str, clients: int, processes: int, duration: float, think: float) -> tuple[list[Record], float]:
+    """The clients' records and the seconds they ran."""
     context = mp.get_context("spawn")
     out: mp.Queue = context.Queue()
     ready: mp.Queue = context.Queue()
@@ -270,13 +282,13 @@ def percentile(values: list[float], q: float) -> float:
     return float(np.percentile(values, q) * 1000) if values else float("nan")
 
 
-def slowest(answers: list, records: list, share: float = 0.01) -> list[list[float]]:
+def slowest(answers: list[Record], records: list[Record], share: float = 0.01) -> list[list[float]]:
     """The slowest 1% of answers as [seconds into the labelling, ms]: a burst or a steady tail."""
     if not answers:
         return []
-    start = min(r[5] for r in records)
-    worst = sorted(answers, key=lambda r: r[1])[-max(1, round(share * len(answers))) :]
-    return sorted([round(r[5] - start, 1), round(r[1] * 1000)] for r in worst)
+    start = min(r.sent_at for r in records)
+    worst = sorted(answers, key=lambda r: r.seconds)[-max(1, round(share * len(answers))) :]
+    return sorted([round(r.sent_at - start, 1), round(r.seconds * 1000)] for r in worst)
 
 
 def bench(backend: str, args: argparse.Namespace) -> dict:
@@ -306,14 +318,14 @@ def bench(backend: str, args: argparse.Namespace) -> dict:
             stop_all(learners, signal.SIGTERM, timeout=120)
             server.terminate()
             server.wait(timeout=30)
-        answers = [r for r in records if r[0] == "answer"]
-        acknowledged = [r for r in answers if r[2] == 200]
-        errors = [r for r in records if r[2] != 200]
+        answers = [r for r in records if r.kind == "answer"]
+        acknowledged = [r for r in answers if r.status == 200]
+        errors = [r for r in records if r.status != 200]
         lost = 0
-        for _, _, _, query_id, success, _ in acknowledged:
-            query = store.get_query(query_id=query_id)
-            lost += query.status != QueryStatus.ANSWERED or query.answer != success
-        answered_ids = {r[3] for r in acknowledged}
+        for record in acknowledged:
+            query = store.get_query(query_id=record.query_id)
+            lost += query.status != QueryStatus.ANSWERED or query.answer != record.answer
+        answered_ids = {r.query_id for r in acknowledged}
         read = sum(store.get_query(query_id=q).used_at is not None for q in answered_ids)
         store.dispose()
     shutil.rmtree(base_dir, ignore_errors=True)
@@ -321,11 +333,11 @@ def bench(backend: str, args: argparse.Namespace) -> dict:
         "backend": backend, "learners": args.learners, "clients": args.clients, "seconds": round(elapsed, 1),
         "requests": len(records), "requests_per_s": round(len(records) / elapsed, 1),
         "answers": len(acknowledged), "answers_per_s": round(len(acknowledged) / elapsed, 1),
-        "answer_p50_ms": round(percentile([r[1] for r in answers], 50), 1),
-        "answer_p99_ms": round(percentile([r[1] for r in answers], 99), 1),
+        "answer_p50_ms": round(percentile([r.seconds for r in answers], 50), 1),
+        "answer_p99_ms": round(percentile([r.seconds for r in answers], 99), 1),
         "slowest_answers": slowest(answers, records),
-        "all_p99_ms": round(percentile([r[1] for r in records], 99), 1),
-        "errors": len(errors), "error_kinds": sorted({str(r[2]) for r in errors}), "lost": lost,
+        "all_p99_ms": round(percentile([r.seconds for r in records], 99), 1),
+        "errors": len(errors), "error_kinds": sorted({str(r.status) for r in errors}), "lost": lost,
         "distinct_queries_answered": len(answered_ids), "read_by_learners": read,
         "learner_steps": steps_after - steps_before, "queries_posted_by_learners": asked,
     }  # fmt: skip
