@@ -69,10 +69,11 @@ def _configure_sqlite(engine: Engine) -> None:
 def make_engine(url: str) -> Engine:
     parsed = make_url(url)
     if parsed.get_backend_name() == "sqlite":
-        if parsed.database and parsed.database != ":memory:":
+        on_disk = parsed.database not in (None, "", ":memory:")
+        if on_disk:
             Path(parsed.database).parent.mkdir(parents=True, exist_ok=True)
-        in_memory = parsed.database in (None, "", ":memory:")  # one connection per thread: no pool to size
-        pool = {} if in_memory else {"pool_size": POOL_SIZE, "max_overflow": 0}
+        # (in memory: one connection per thread, no pool to size)
+        pool = {"pool_size": POOL_SIZE, "max_overflow": 0} if on_disk else {}
         engine = create_engine(url, connect_args={"timeout": SQLITE_BUSY_TIMEOUT_MS / 1000}, **pool)
         _configure_sqlite(engine)
         return engine
@@ -88,7 +89,7 @@ class Database:
         # SQLite has one writer at a time, and a connection waiting for the write lock polls with SQLite's busy
         # handler, sleeping up to 100 ms between tries: under 50 concurrent requests the answers' p99 was 200+
         # ms although each write holds the lock ~1 ms. Writers of this process queue on a lock instead and
-        # start the moment the previous one commits; other processes (learners) still meet the busy timeout.
+        # start the moment the previous one commits; against other processes (learners) _begin_immediate polls.
         self._write_turn: AbstractContextManager = (
             threading.RLock() if self.engine.dialect.name == "sqlite" else nullcontext()
         )
