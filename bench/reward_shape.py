@@ -16,6 +16,7 @@ import os
 import sys
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -69,6 +70,40 @@ def play(env, policy: str, agent: SACAgent, config: TrainConfig, episodes: int, 
     }  # fmt: skip
 
 
+def door_landscape(model: RewardModel, env: gym.Env, columns: int = 8, rows: int = 7) -> list[str]:
+    """f_psi with the door shut over the hook's (y, z) at the handle's x, as lines to print (highest z first): where
+    the learned reward draws the hand before the door moves. Marks the cell nearest the slot behind the bar (S),
+    where hooking starts, and the one nearest the hand in a success state (G: the scripted pull's end, as in the
+    goal images)."""
+    door = env.unwrapped
+    snapshot = door.state_snapshot()
+    door.set_door_angle(0.0)
+    slot = door.handle_pos
+    while not door.get_info()["success"]:  # the scripted controller from this state, to where the goal images are
+        door.step(scripted_action(door))
+    goal_hand = door.hand_pos
+    low, high = np.asarray(door.hand_low), np.asarray(door.hand_high)
+    ys, zs = np.linspace(low[1], high[1], columns), np.linspace(low[2], high[2], rows)[::-1]
+    marks = {
+        (int(np.abs(zs - p[2]).argmin()), int(np.abs(ys - p[1]).argmin())): m
+        for p, m in ((slot, "S"), (goal_hand, "G"))
+    }
+    lines = [f"f_psi with the door shut, hand x {slot[0]:+.2f}; columns y {ys[0]:+.2f} (nearest the robot) to "
+             f"{ys[-1]:+.2f} (the door), rows z from {zs[0]:.2f} down:"]  # fmt: skip
+    images = []
+    for z in zs:
+        for y in ys:
+            door.set_door_angle(0.0)
+            door.set_hand_pos(np.array([slot[0], y, z]))
+            images.append(model_image(door.render_image(door.image_size), model.config.image_size))
+    logits = model.logits(np.stack(images)).reshape(rows, columns)
+    for i, z in enumerate(zs):
+        cells = " ".join(f"{logits[i, j]:+5.1f}{marks.get((i, j), ' ')}" for j in range(columns))
+        lines.append(f"  z {z:.2f} {cells}")
+    door.restore_snapshot(snapshot)
+    return lines
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("checkpoint", type=Path)
@@ -107,6 +142,8 @@ def main() -> int:
         tenth = max(1, config.episode_steps // 10)
         by_time = " ".join(f"{logits[data['step'] // tenth == t].mean():+.1f}" for t in range(10))
         print(f"  f_psi by tenth of the episode: {by_time}")
+    if "door_angle" in env.unwrapped.get_info():
+        print("\n" + "\n".join(door_landscape(model, env)))
     env.close()
     return 0
 

@@ -475,3 +475,15 @@ def test_a_rollout_gif_holds_every_frame_in_order_close_to_its_colours() -> None
         assert np.abs(decoded - frame).mean() < 2.0, index
     gif.seek(5)
     assert np.abs(np.asarray(gif.convert("RGB"), dtype=np.int16)[:8, :8] - (255, 0, 0)).max() <= 8
+
+
+def test_schedule_credit_is_zero_for_a_step_at_the_goal_and_a_half_for_a_ramp() -> None:
+    """bench/classifier_schedule.py's measure of how much of f_psi's rise comes before success."""
+    from bench.classifier_schedule import credit
+
+    steps = np.tile(np.arange(10), 2)  # two episodes of 10 steps, success from step 8 on
+    success = (steps >= 8).astype(np.float32)
+    step_at_goal = np.where(success > 0, 5.0, -1.0)
+    assert credit(step_at_goal, steps, success, random_mean=-1.0) == pytest.approx(0.0)
+    ramp = steps.astype(np.float64)  # rises by 1 per step: 0 at the start, 8.5 on the success states
+    assert credit(ramp, steps, success, random_mean=0.0) == pytest.approx(3.5 / 8.5)
