@@ -5,8 +5,11 @@
 #   bash bench/gpu_check.sh speed            learner_speed and loop_speed on cuda (about 3 minutes)
 #   bash bench/gpu_check.sh learn MINUTES    learning runs side by side on the GPU for MINUTES: VICE-RAQ on the
 #                                            pusher (stops at 90%), the door and the picker, settings as README
-#   bash bench/gpu_check.sh door-sweep MIN   the door's classifier sweep, 6 runs side by side: {5, 10, 100} steps
-#                                            per epoch x lr {1e-4, 3e-4} (issue 11; the paper: 5 steps was best)
+#   bash bench/gpu_check.sh door-sweep MIN   the door's classifier sweep, 8 runs side by side: {5, 10, 100} steps
+#                                            per epoch x lr {1e-4, 3e-4} (issue 11; the paper: 5 steps was best),
+#                                            and 5 and 10 steps at 3e-4 with a query every 1,000 steps and the "no"
+#                                            answers as a quarter of the negatives (README: why the door gets
+#                                            no further)
 set -u
 phase=${1:-speed}
 minutes=${2:-6}
@@ -43,6 +46,12 @@ if [ "$phase" = door-sweep ]; then
         classifier_steps=$steps classifier_lr=$lr --out "$runs/door-c${steps}-lr${lr}" > "$OUT/door-c${steps}-lr${lr}.txt" 2>&1 &
     done
   done
+  for steps in 5 10; do
+    python3 bench/learn.py --task door --algorithm vice_raq --seed 0 --max-minutes "$minutes" --total-steps 200000 \
+      --query-every 1000 --query-budget 300 --set device="${DEVICE:-cuda}" replay_pipeline=device num_envs=4 \
+      classifier_steps=$steps classifier_lr=3e-4 no_answer_share=0.25 \
+      --out "$runs/door-c${steps}-lr3e-4-noanswers" > "$OUT/door-c${steps}-lr3e-4-noanswers.txt" 2>&1 &
+  done
   wait
   collect
   tail -n 2 "$OUT"/door-*.txt
@@ -59,7 +68,7 @@ python3 bench/learn.py --task door --algorithm vice_raq "${common[@]}" --total-s
   --query-budget 20 --set device="$device" replay_pipeline=device classifier_steps=10 \
   --out "$runs/door-vice_raq-seed0" > "$OUT/door.txt" 2>&1 &
 python3 bench/learn.py --task picker --algorithm vice_raq "${common[@]}" --total-steps 300000 --query-every 1000 \
-  --query-budget 300 --set device="$device" replay_pipeline=device \
+  --query-budget 300 --set device="$device" replay_pipeline=device no_answer_share=0.25 \
   --out "$runs/picker-vice_raq-seed0" > "$OUT/picker.txt" 2>&1 &
 wait
 collect
