@@ -40,6 +40,7 @@ from learner.envs import make_env  # noqa: E402
 from learner.replay import ReplayBuffer  # noqa: E402
 from learner.reward import RewardModel  # noqa: E402
 from learner.sac import SACAgent  # noqa: E402
+from learner.updates import no_answer_count  # noqa: E402
 
 STEPS_PER_EPOCH = (5, 10, 100)
 LEARNING_RATES = (1e-4, 3e-4)
@@ -48,16 +49,28 @@ LEARNING_RATES = (1e-4, 3e-4)
 def train(
     config: TrainConfig, replay: ReplayBuffer, positives: np.ndarray, agent: SACAgent, epochs: int, seed: int
 ) -> RewardModel:
-    """A fresh f_psi trained for `epochs` epochs of `config.classifier_steps` steps on the replay as it grew."""
+    """A fresh f_psi trained for `epochs` epochs of `config.classifier_steps` steps on the replay as it grew. With
+    `no_answer_share` > 0, every `query_every` transitions the observation f_psi rates highest since the last query
+    is asked about (answered from the replay's success flag), and the "no" answers make that share of each step's
+    negatives, as the learner does."""
     torch.manual_seed(seed)
     model = RewardModel(config, np.random.default_rng(seed))
     model.goals = positives
     rng = np.random.default_rng(seed + 1)
+    asked = 0
     for epoch in range(1, epochs):  # no training during the first epoch (original-implementation.md)
         seen = min(len(replay), epoch * config.epoch_steps)
+        while config.no_answer_share > 0 and asked + config.query_every <= seen:
+            since = np.arange(asked, asked + config.query_every)
+            best = since[int(np.argmax(model.logits(replay.frames[replay.next_slot[since]])))]
+            image = replay.frames[replay.next_slot[best]]
+            (model.add_positive if replay.success[best] > 0 else model.add_negative)(image)
+            asked += config.query_every
+        answered = no_answer_count(config) if len(model.answered_negatives) else 0
         for _ in range(config.classifier_steps):
             picks = rng.integers(0, seen, size=config.classifier_batch_size)
             negatives = replay.frames[replay.next_slot[picks]]
+            negatives[:answered] = model.answered_negatives[rng.integers(0, len(model.answered_negatives), answered)]
             model.update_classifier(
                 model.sample_positives(config.classifier_batch_size), negatives, agent.policy, accuracy=False
             )  # fmt: skip
@@ -83,6 +96,8 @@ def main() -> int:
     parser.add_argument("--steps", type=int, nargs="+", default=list(STEPS_PER_EPOCH), help="steps per epoch")
     parser.add_argument("--lr", type=float, nargs="+", default=list(LEARNING_RATES))
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--query-every", type=int, default=None, help="default: the run's")
+    parser.add_argument("--no-answer-share", type=float, default=None, help="default: the run's")
     parser.add_argument("--landscape", action="store_true", help="door: also f_psi over the hand's (y, z), door shut")
     args = parser.parse_args()
     state = load_checkpoint(args.checkpoint)
@@ -111,7 +126,11 @@ def main() -> int:
     print("steps lr     | f_psi by tenth of the scripted episodes                      | random  goals | rho   credit")
     for steps in args.steps:
         for lr in args.lr:
-            config = TrainConfig.from_dict({**run_config.to_dict(), "classifier_steps": steps, "classifier_lr": lr})
+            setting = {"classifier_steps": steps, "classifier_lr": lr}
+            for name in ("query_every", "no_answer_share"):
+                if getattr(args, name) is not None:
+                    setting[name] = getattr(args, name)
+            config = TrainConfig.from_dict({**run_config.to_dict(), **setting})
             started = time.perf_counter()
             model = train(config, replay, positives, agent, epochs, args.seed)
             path = model.logits(scripted["images"])
@@ -122,7 +141,8 @@ def main() -> int:
             share = credit(path, scripted["step"], scripted["success"], random_mean)
             print(
                 f"{steps:5d} {lr:.0e} | {by_tenth} | {random_mean:+6.1f} {model.logits(positives).mean():+6.1f} | "
-                f"{rho:+.2f} {share:+.2f}   ({time.perf_counter() - started:.0f} s)",
+                f"{rho:+.2f} {share:+.2f}   ({len(model.answered_negatives)} no, {len(model.answered_positives)} yes; "
+                f"{time.perf_counter() - started:.0f} s)",
                 flush=True,
             )  # fmt: skip
             if args.landscape and "door_angle" in env.unwrapped.get_info():
