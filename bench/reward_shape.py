@@ -7,7 +7,9 @@ and uniformly random actions on the run's task, scores every observation with th
 per policy: mean f_psi by distance-to-goal bin (the env's own measure: door angle error, ball or mug to goal) and
 by tenth of the episode (along the scripted path: approach, grasp or hook, then the motion that succeeds), the
 rank correlation of f_psi with closeness, and where the policy ends. A reward that SAC can climb rises as the
-distance falls along the scripted path; one that is flat until the goal gives SAC nothing to follow.
+distance falls along the scripted path; one that is flat until the goal gives SAC nothing to follow. Before that
+it prints what the run has collected (its replay's successes and f_psi's top, per 5,000 transitions) and, on the
+door, f_psi with the door shut over the hand's (y, z): where the reward draws the hand before anything opens.
 """
 
 import argparse
@@ -15,6 +17,7 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -68,6 +71,21 @@ def play(env, policy: str, agent: SACAgent, config: TrainConfig, episodes: int, 
         "images": np.stack(images), "distance": np.array(distances), "success": np.array(successes),
         "final": np.array(final), "step": np.array(steps),
     }  # fmt: skip
+
+
+def replay_summary(model: RewardModel, replay: dict[str, Any], block: int = 5000) -> list[str]:
+    """What the run has seen, as lines to print: per `block` transitions of its replay (in the order collected),
+    the share that are successes and f_psi's maximum and 99th percentile on their observations s'."""
+    frames, next_slot, success = replay["frames"].numpy(), replay["next_slot"].numpy(), replay["success"].numpy()
+    logits = model.logits(frames[next_slot])
+    lines = [f"replay: {len(next_slot)} transitions; per {block:,}: successes, f_psi max and 99th percentile"]
+    for first in range(0, len(next_slot), block):
+        part = slice(first, first + block)
+        lines.append(
+            f"  {first:>7,}+  {np.nanmean(success[part]):6.1%}  max {logits[part].max():+5.1f}  "
+            f"p99 {np.quantile(logits[part], 0.99):+5.1f}"
+        )
+    return lines
 
 
 def door_landscape(model: RewardModel, env: gym.Env, columns: int = 8, rows: int = 7) -> list[str]:
@@ -126,6 +144,7 @@ def main() -> int:
     everything = np.concatenate([p["distance"] for p in played.values()])
     edges = np.quantile(everything, np.linspace(0, 1, args.bins + 1))
     print(f"goal images: f_psi mean {model.logits(model.goals).mean():+.2f}")
+    print("\n" + "\n".join(replay_summary(model, state["replay"])))
     for policy, data in played.items():
         logits = model.logits(data["images"])
         bins = np.clip(np.searchsorted(edges, data["distance"], side="right") - 1, 0, args.bins - 1)
