@@ -15,13 +15,12 @@ uniformly random actions (`bench/reward_shape.py`'s episodes) and prints per set
 scripted episodes, on random states and on the goal images, the rank correlation of f_psi with closeness to
 success on the scripted states, and `credit`: the share of the scripted path's rise in f_psi (random states to
 success states) that is reached before success, averaged over the path's states before their first success. A
-reward that is a step at the goal has credit near 0; one that rises steadily along the path, about 0.5. On the
+reward that is a step at the goal has credit near 0; one that rises steadily along the path, about 0.4-0.5. On the
 door, `--landscape` also prints each setting's f_psi with the door shut over the hand's (y, z) (see
 `bench/reward_shape.py`): where the reward draws the hand before anything has opened.
 """
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -33,8 +32,7 @@ import torch
 os.environ.setdefault("MUJOCO_GL", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.reward_shape import door_landscape, play, rank_correlation  # noqa: E402
-from learner.checkpoint import load_checkpoint  # noqa: E402
+from bench.reward_shape import door_landscape, load_run, play, rank_correlation  # noqa: E402
 from learner.config import TrainConfig  # noqa: E402
 from learner.envs import make_env  # noqa: E402
 from learner.replay import ReplayBuffer  # noqa: E402
@@ -100,13 +98,8 @@ def main() -> int:
     parser.add_argument("--no-answer-share", type=float, default=None, help="default: the run's")
     parser.add_argument("--landscape", action="store_true", help="door: also f_psi over the hand's (y, z), door shut")
     args = parser.parse_args()
-    state = load_checkpoint(args.checkpoint)
-    if state is None or state.get("reward_model") is None:
-        raise SystemExit(f"{args.checkpoint}: no checkpoint with a reward classifier")
-    run_config = TrainConfig.from_dict({**json.loads(state["config"]), "device": "cpu"})
-    action_dim = int(state["agent"]["actor"]["trunk.4.bias"].shape[0]) // 2
-    agent = SACAgent(run_config, action_dim=action_dim)
-    agent.load_state_dict(state["agent"])
+    state, run_config, agent = load_run(args.checkpoint)
+    action_dim = int(state["replay"]["actions"].shape[1])
     replay = ReplayBuffer(run_config.replay_capacity, (run_config.image_size, run_config.image_size, 3), action_dim)
     replay.load_state_dict(state["replay"])
     rewards = state["reward_model"]

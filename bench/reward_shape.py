@@ -73,6 +73,17 @@ def play(env, policy: str, agent: SACAgent, config: TrainConfig, episodes: int, 
     }  # fmt: skip
 
 
+def load_run(checkpoint: Path) -> tuple[dict[str, Any], TrainConfig, SACAgent]:
+    """A run's checkpoint with a reward classifier, its config (on the CPU) and its SAC agent."""
+    state = load_checkpoint(checkpoint)
+    if state is None or state.get("reward_model") is None:
+        raise SystemExit(f"{checkpoint}: no checkpoint with a reward classifier")
+    config = TrainConfig.from_dict({**json.loads(state["config"]), "device": "cpu"})
+    agent = SACAgent(config, action_dim=int(state["agent"]["actor"]["trunk.4.bias"].shape[0]) // 2)
+    agent.load_state_dict(state["agent"])
+    return state, config, agent
+
+
 def replay_summary(model: RewardModel, replay: dict[str, Any], block: int = 5000) -> list[str]:
     """What the run has seen, as lines to print: per `block` transitions of its replay (in the order collected),
     the share that are successes and f_psi's maximum and 99th percentile on their observations s'."""
@@ -128,12 +139,7 @@ def main() -> int:
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--bins", type=int, default=6)
     args = parser.parse_args()
-    state = load_checkpoint(args.checkpoint)
-    if state is None or state.get("reward_model") is None:
-        raise SystemExit(f"{args.checkpoint}: no checkpoint with a reward classifier")
-    config = TrainConfig.from_dict({**json.loads(state["config"]), "device": "cpu"})
-    agent = SACAgent(config, action_dim=int(state["agent"]["actor"]["trunk.4.bias"].shape[0]) // 2)
-    agent.load_state_dict(state["agent"])
+    state, config, agent = load_run(args.checkpoint)
     model = RewardModel(config, np.random.default_rng(0))
     model.load_state_dict(state["reward_model"])
     env = make_env(config.env_id, image_size=config.image_size, display_size=64)
