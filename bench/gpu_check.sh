@@ -64,8 +64,8 @@ common=(--seed 0 --max-minutes "$minutes")
 python3 bench/learn.py --task pusher --algorithm vice_raq "${common[@]}" --total-steps 100000 \
   --stop-at-success 0.9 --set device="$device" replay_pipeline=device \
   --out "$runs/pusher-vice_raq-seed0" > "$OUT/pusher.txt" 2>&1 &
-python3 bench/learn.py --task door --algorithm vice_raq "${common[@]}" --total-steps 200000 --query-every 10000 \
-  --query-budget 20 --set device="$device" replay_pipeline=device classifier_steps=10 \
+python3 bench/learn.py --task door --algorithm vice_raq "${common[@]}" --total-steps 200000 --query-every 1000 \
+  --query-budget 300 --set device="$device" replay_pipeline=device classifier_steps=10 no_answer_share=0.25 \
   --out "$runs/door-vice_raq-seed0" > "$OUT/door.txt" 2>&1 &
 python3 bench/learn.py --task picker --algorithm vice_raq "${common[@]}" --total-steps 300000 --query-every 1000 \
   --query-budget 300 --set device="$device" replay_pipeline=device no_answer_share=0.25 \
