@@ -108,8 +108,12 @@ def door_landscape(model: RewardModel, env: gym.Env, columns: int = 8, rows: int
     snapshot = door.state_snapshot()
     door.set_door_angle(0.0)
     slot = door.handle_pos
-    while not door.get_info()["success"]:  # the scripted controller from this state, to where the goal images are
+    for _ in range(200):  # the scripted controller from this state, to where the goal images are (14-32 steps)
+        if door.get_info()["success"]:
+            break
         door.step(scripted_action(door))
+    else:
+        raise RuntimeError("the scripted controller did not open the door in 200 steps")
     goal_hand = door.hand_pos
     low, high = np.asarray(door.hand_low), np.asarray(door.hand_high)
     ys, zs = np.linspace(low[1], high[1], columns), np.linspace(low[2], high[2], rows)[::-1]
