@@ -16,10 +16,13 @@ def line_plot(
     x_label: str = "env steps",
     y_range: tuple[float, float] | None = None,
     size: tuple[int, int] = (900, 500),
+    bands: dict[str, Sequence[tuple[float, float, float]]] | None = None,
 ) -> None:
-    """Each series is a list of (x, y). y_range None: fitted to the data (each series is drawn on it)."""
+    """Each series is a list of (x, y); `bands` gives a series a shaded (x, low, high) spread, drawn under the
+    lines in the series' colour. y_range None: fitted to the data (each series is drawn on it)."""
     width, height = size
     left, right, top, bottom = 70, 20, 40, 60
+    bands = bands or {}
     image = Image.new("RGB", size, "white")
     draw = ImageDraw.Draw(image)
     points = [point for values in series.values() for point in values]
@@ -34,6 +37,16 @@ def line_plot(
         py = height - bottom - (height - top - bottom) * (y - y_low) / ((y_high - y_low) or 1.0)
         return px, py
 
+    shade = Image.new("RGB", size, "white")
+    shade_draw = ImageDraw.Draw(shade)
+    for index, name in enumerate(series):
+        band = bands.get(name, [])
+        if len(band) > 1:
+            outline = [to_pixel(x, high) for x, _, high in band] + [to_pixel(x, low) for x, low, _ in reversed(band)]
+            shade_draw.polygon(outline, fill=COLOURS[index % len(COLOURS)])
+    if bands:  # each band a quarter of its colour's strength on the white plot, under everything drawn next
+        image = Image.blend(image, shade, 0.25)
+        draw = ImageDraw.Draw(image)
     draw.rectangle([left, top, width - right, height - bottom], outline="black")
     for tick in range(6):
         y = y_low + (y_high - y_low) * tick / 5

@@ -2,7 +2,9 @@
 
 import copy
 import io
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -487,3 +489,34 @@ def test_schedule_credit_is_zero_for_a_step_at_the_goal_and_a_half_for_a_ramp() 
     assert credit(step_at_goal, steps, success, random_mean=-1.0) == pytest.approx(0.0)
     ramp = steps.astype(np.float64)  # rises by 1 per step: 0 at the start, 8.5 on the success states
     assert credit(ramp, steps, success, random_mean=0.0) == pytest.approx(3.5 / 8.5)
+
+
+def test_the_method_comparison_averages_seeds_where_all_evaluated_and_counts_who_reached_90(tmp_path: Path) -> None:
+    """bench/compare.py --by-method: one mean curve with its min-max spread per method, cut at the shortest seed
+    and at --until, and a table row per method in the methods' one list order."""
+    from bench.compare import by_method
+
+    def run(name: str, rates: list[float], queries: int = 0) -> Path:
+        folder = tmp_path / name
+        folder.mkdir()
+        rows = "".join(f"{1000 * (i + 1)},{rate}\n" for i, rate in enumerate(rates))
+        (folder / "curve.csv").write_text("step,eval/success_rate\n" + rows)
+        summary = {"run": name, "queries_asked": queries, "queries_yes": queries // 2}
+        (folder / "summary.json").write_text(json.dumps(summary))
+        return folder
+
+    runs = [
+        run("pusher-sparse-seed0", [0.0, 0.2, 0.4]),
+        run("pusher-vice_raq-seed0", [0.0, 0.6, 1.0, 1.0], queries=4),
+        run("pusher-vice_raq-seed1", [0.2, 0.4, 0.8, 0.9, 1.0], queries=2),
+    ]
+    lines = by_method(runs, tmp_path / "methods.png", "pusher", until=4000)
+    assert [line.split(" | ")[0] for line in lines[2:]] == ["| vice_raq", "| sparse"]  # ALGORITHMS' order
+    vice_raq = lines[2].split(" | ")
+    assert vice_raq[1:5] == ["2", "4,000", "2 of 2", "3,000, 4,000"]  # to 4,000: both seeds evaluated there
+    assert vice_raq[5] == f"{(0.1 + 0.5 + 0.9 + 0.95) / 4:.0%}" and vice_raq[7] == "4 (2), 2 (1) |"
+    assert lines[3].split(" | ")[2:4] == ["3,000", "0 of 1"] and lines[3].endswith("| - |")
+    with Image.open(tmp_path / "methods.png") as image:
+        assert image.size == (900, 500)
+    with pytest.raises(SystemExit, match="cannot tell the method"):
+        by_method([run("door-seed0", [0.0])], tmp_path / "x.png", "door")

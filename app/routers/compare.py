@@ -22,6 +22,16 @@ COMPARE_METRICS = {
 MAX_RUNS = 50
 
 
+def mean_and_spread(per_run: list[dict[int, float]]) -> list[list[float]]:
+    """[step, mean, min, max, runs] at each step every run recorded (a run that stopped early ends the curve)."""
+    common = sorted(set.intersection(*(set(values) for values in per_run))) if per_run else []
+    points = []
+    for step in common:
+        values = [values[step] for values in per_run]
+        points.append([float(step), sum(values) / len(values), min(values), max(values), float(len(values))])
+    return points
+
+
 def compare_groups(store: Store, *, run_ids: list[int], metric: str) -> list[CompareGroupOut]:
     groups: dict[str, list[int]] = {}
     for run_id in run_ids:
@@ -30,12 +40,7 @@ def compare_groups(store: Store, *, run_ids: list[int], metric: str) -> list[Com
     out = []
     for label, ids in groups.items():
         per_run = [{m.step: m.value for m in store.metrics(run_id=run_id, names=[metric])} for run_id in ids]
-        common = sorted(set.intersection(*(set(values) for values in per_run))) if per_run else []
-        points = []
-        for step in common:
-            values = [values[step] for values in per_run]
-            points.append([float(step), sum(values) / len(values), min(values), max(values), float(len(values))])
-        out.append(CompareGroupOut(label=label, run_ids=ids, points=points))
+        out.append(CompareGroupOut(label=label, run_ids=ids, points=mean_and_spread(per_run)))
     return out
 
 
