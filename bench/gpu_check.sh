@@ -10,6 +10,9 @@
 #                                            and 5 and 10 steps at 3e-4 with a query every 1,000 steps and the "no"
 #                                            answers as a quarter of the negatives (README: why the door gets
 #                                            no further)
+#   bash bench/gpu_check.sh compare MINUTES  the paper's comparison on the pusher (issue 11): every reward method x
+#                                            seeds 0-2 side by side, to 30K env steps each or MINUTES, then
+#                                            bench/compare.py --by-method (METHODS, SEEDS: fewer, to try it)
 set -u
 phase=${1:-speed}
 minutes=${2:-6}
@@ -55,6 +58,22 @@ if [ "$phase" = door-sweep ]; then
   wait
   collect
   tail -n 2 "$OUT"/door-*.txt
+  exit 0
+fi
+
+if [ "$phase" = compare ]; then
+  methods=${METHODS:-$(python3 -c "from learner.algorithms import ALGORITHMS; print(*ALGORITHMS)")}
+  for method in $methods; do
+    for seed in ${SEEDS:-0 1 2}; do
+      python3 bench/learn.py --task pusher --algorithm "$method" --seed "$seed" --max-minutes "$minutes" \
+        --total-steps 30000 --set device="${DEVICE:-cuda}" replay_pipeline=device \
+        --out "$runs/pusher-$method-seed$seed" > "$OUT/pusher-$method-seed$seed.txt" 2>&1 &
+    done
+  done
+  wait
+  collect
+  python3 bench/compare.py --by-method --until 30000 "$runs"/pusher-*-seed*/ --out "$OUT/pusher-methods.png" \
+    --title "pusher: eval success, mean and min-max over seeds" | tee "$OUT/pusher-methods.md"
   exit 0
 fi
 
