@@ -41,8 +41,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    if not 1 <= args.workers <= 64:
+        print("raq serve: --workers must be 1 to 64", file=sys.stderr)
+        return 2
     _migrate(settings)
-    uvicorn.run("app.main:create_app", factory=True, host=host, port=port, log_level=args.log_level)
+    # Several processes share nothing but the database (the login rate limit and sessions live there too).
+    uvicorn.run(
+        "app.main:create_app", factory=True, host=host, port=port, log_level=args.log_level, workers=args.workers
+    )
     return 0
 
 
@@ -166,6 +172,9 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--host", default=None, help="default: RAQ_HOST or 127.0.0.1")
     serve.add_argument("--port", type=int, default=None, help="default: RAQ_PORT or 8000")
     serve.add_argument("--log-level", default="info")
+    serve.add_argument(
+        "--workers", type=int, default=1, help="server processes (default 1); more serve more labellers at once"
+    )
     serve.set_defaults(handler=cmd_serve)
 
     learn = commands.add_parser("learn", help="run a learner worker that claims queued runs and trains them")

@@ -16,7 +16,7 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from app.routers import compare, docs, envs, events, exports, goal_sets, health, metrics, pages, queries, runs
 from app.schemas import errors
-from app.security import LoginRateLimit, RequestGuard
+from app.security import RequestGuard
 from app.settings import Settings, get_settings
 from app.store import Conflict, InvalidInput, NotFound, Store
 
@@ -72,7 +72,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.store = store
-    app.state.login_limit = LoginRateLimit(settings.login_attempts_per_minute)
 
     @app.exception_handler(RequestValidationError)
     async def _validation(_request: Request, error: RequestValidationError) -> JSONResponse:

@@ -1,4 +1,4 @@
-"""What every request goes through before any route runs, and the login rate limit.
+"""What every request goes through before any route runs.
 
 RequestGuard (an ASGI middleware, outermost) does, in this order, before a byte of the body is read:
 1. with RAQ_API_TOKEN set, refuses a request that carries neither the bearer token nor a live login session:
@@ -9,11 +9,7 @@ RequestGuard (an ASGI middleware, outermost) does, in this order, before a byte 
 3. adds X-Content-Type-Options: nosniff, a Content-Security-Policy and friends to every response.
 """
 
-import math
 import re
-import threading
-import time
-from collections import deque
 from urllib.parse import quote
 
 from fastapi import HTTPException
@@ -149,37 +145,3 @@ class RequestGuard:
             return message
 
         return counted_receive
-
-
-class LoginRateLimit:
-    """At most `per_minute` failed logins per client address in any 60 s; thread-safe, in this process."""
-
-    WINDOW_SECONDS = 60.0
-
-    def __init__(self, per_minute: int) -> None:
-        self.per_minute = per_minute
-        self._failures: dict[str, deque[float]] = {}
-        self._lock = threading.Lock()
-
-    def _recent(self, client: str, now: float) -> deque[float]:
-        failures = self._failures.setdefault(client, deque())
-        while failures and failures[0] <= now - self.WINDOW_SECONDS:
-            failures.popleft()
-        return failures
-
-    def retry_after(self, client: str) -> int | None:
-        """Seconds until this client may try again, or None when it may now."""
-        now = time.monotonic()
-        with self._lock:
-            failures = self._recent(client, now)
-            if len(failures) < self.per_minute:
-                return None
-            return max(1, math.ceil(failures[0] + self.WINDOW_SECONDS - now))
-
-    def failed(self, client: str) -> None:
-        now = time.monotonic()
-        with self._lock:
-            self._recent(client, now).append(now)
-            if len(self._failures) > 10_000:  # forget quiet clients rather than grow without bound
-                for key in [key for key, value in self._failures.items() if not value][:5_000]:
-                    del self._failures[key]

@@ -135,13 +135,13 @@ def prepare(url: str, learners: int, seed_queries: int) -> list[int]:
 
 
 # ---------------------------------------------------------------- processes
-def start_server(url: str, data_dir: Path, log: Path) -> tuple[subprocess.Popen, str]:
+def start_server(url: str, data_dir: Path, log: Path, workers: int = 1) -> tuple[subprocess.Popen, str]:
     port = free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("RAQ_")}
     env.update(RAQ_DATABASE_URL=url, RAQ_DATA_DIR=str(data_dir), PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")
     process = subprocess.Popen(
         [sys.executable, "-m", "uvicorn", "--factory", "app.main:create_app", "--host", "127.0.0.1",
-         "--port", str(port), "--log-level", "warning"],
+         "--port", str(port), "--log-level", "warning", "--workers", str(workers)],
         cwd=data_dir, env=env, stdout=log.open("wb"), stderr=subprocess.STDOUT,
     )  # fmt: skip
     base = f"http://127.0.0.1:{port}"
@@ -294,7 +294,7 @@ def bench(backend: str, args: argparse.Namespace) -> dict:
     with contextmanager_for(backend, base_dir, args) as url:
         run_ids = prepare(url, args.learners, args.seed_queries)
         store = Store(url)
-        server, base = start_server(url, base_dir, base_dir / "server.log")
+        server, base = start_server(url, base_dir, base_dir / "server.log", args.server_workers)
         separate = backend == "postgres"  # PostgreSQL: each learner its own data dir, as on its own host
         learners = [
             start_learner(url, base_dir / (f"host-{i}" if separate else "host"), f"learner-{i}", args.learner_nice)
@@ -329,6 +329,7 @@ def bench(backend: str, args: argparse.Namespace) -> dict:
     shutil.rmtree(base_dir, ignore_errors=True)
     result = {
         "backend": backend, "learners": args.learners, "clients": args.clients, "seconds": args.duration,
+        "server_workers": args.server_workers,
         "requests": len(records), "requests_per_s": round(len(records) / args.duration, 1),
         "answers": len(acknowledged), "answers_per_s": round(len(acknowledged) / args.duration, 1),
         "answer_p50_ms": round(percentile([r.seconds for r in answers], 50), 1),
@@ -367,6 +368,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--database-url", default=None, help="an existing, empty PostgreSQL database to use")
     parser.add_argument("--learners", type=int, default=4)
     parser.add_argument("--clients", type=int, default=50)
+    parser.add_argument(
+        "--server-workers", type=int, default=1, help="server processes (`raq serve --workers`; default 1)"
+    )
     parser.add_argument("--client-processes", type=int, default=5, help="processes the client threads run in")
     parser.add_argument("--duration", type=float, default=30.0, help="seconds of labelling per backend")
     parser.add_argument("--think", type=float, default=2.0, help="mean seconds a client thinks between answers")
@@ -379,6 +383,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not 1 <= args.learners <= 32 or not 1 <= args.clients <= 500 or not 1 <= args.duration <= 600:
         parser.error("bounded: 1-32 learners, 1-500 clients, 1-600 s")
+    if not 1 <= args.server_workers <= 16:
+        parser.error("bounded: 1-16 server workers")
     backends = ["postgres", "sqlite"] if args.backend == "both" else [args.backend]
     results = [bench(backend, args) for backend in backends]
     print("SUMMARY " + json.dumps(results), flush=True)

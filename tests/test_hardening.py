@@ -6,6 +6,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from datetime import timedelta
 
 import httpx
 import pytest
@@ -14,7 +15,7 @@ from conftest import ROOT, LiveServer, image_bytes
 from fastapi.testclient import TestClient
 
 from app.settings import Settings
-from app.store import INT64_MAX, Query, Store
+from app.store import INT64_MAX, LoginFailure, Query, Store
 from app.store.models import utcnow
 from learner import envs
 from learner.config import host_cuda_devices
@@ -369,6 +370,29 @@ def test_login_is_rate_limited(make_client: Callable[..., TestClient]) -> None:
     assert "Too many" in limited.text
     # even the right token waits until the window has passed
     assert client.post("/login", data={"token": TOKEN}, follow_redirects=False).status_code == 429
+
+
+def test_the_login_limit_is_one_for_every_server_process_and_ends_with_its_window(
+    make_client: Callable[..., TestClient], store: Store
+) -> None:
+    """Two server processes on one database (two apps here): wrong tokens at either count against one limit, kept
+    in the database, and once the failures are older than 60 s (the database's clock) the address may try again."""
+    first = make_client(api_token=TOKEN, login_attempts_per_minute=4)
+    second = make_client(api_token=TOKEN, login_attempts_per_minute=4)
+    for client in (first, second, first, second):
+        assert client.post("/login", data={"token": "guess"}).status_code == 401
+    for client in (first, second):
+        refused = client.post("/login", data={"token": TOKEN}, follow_redirects=False)
+        assert refused.status_code == 429 and 55 <= int(refused.headers["retry-after"]) <= 60
+    assert store.login_retry_after(client="10.0.0.1", per_minute=4) is None  # another address is not limited
+    with store.writing() as session:  # the two oldest failures age past the window: two more tries
+        oldest = session.scalars(sa.select(LoginFailure.id).order_by(LoginFailure.id).limit(2)).all()
+        aged = utcnow() - timedelta(seconds=61)
+        session.execute(sa.update(LoginFailure).where(LoginFailure.id.in_(oldest)).values(failed_at=aged))
+    assert second.post("/login", data={"token": "guess"}).status_code == 401
+    assert first.post("/login", data={"token": TOKEN}, follow_redirects=False).status_code == 303
+    with store.reading() as session:  # the aged rows went when the next failure was counted
+        assert session.scalar(sa.select(sa.func.count()).select_from(LoginFailure)) == 3
 
 
 def test_every_response_carries_nosniff_and_a_content_security_policy(

@@ -110,6 +110,10 @@ def test_the_store_works_on_postgresql(postgres_url: str) -> None:
     assert store.latest_metric(run_id=run_id, name="eval/success_rate") == 0.5
     assert store.heartbeat(run_id=run_id, worker=store.get_run(run_id=run_id).worker, step=7) is True
     assert store.get_run(run_id=run_id).heartbeat_at.tzinfo is not None
+    for _ in range(3):  # the login rate limit, by PostgreSQL's clock
+        store.login_failed(client="10.1.2.3")
+    assert store.login_retry_after(client="10.1.2.3", per_minute=4) is None
+    assert 55 <= (store.login_retry_after(client="10.1.2.3", per_minute=3) or 0) <= 60
     store.dispose()
 
 

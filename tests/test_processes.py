@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 
@@ -55,3 +56,42 @@ def test_raq_up_serves_health_runs_a_learner_and_stops_cleanly(tmp_path: Path) -
     output = (tmp_path / "up.log").read_text()
     assert code == 0, output
     assert "web" in output and "learner" in output and "raq up: stopped" in output
+
+
+def test_raq_serve_with_two_workers_shares_the_login_limit_between_its_processes(tmp_path: Path) -> None:
+    """`raq serve --workers 2`: two server processes on one SQLite file; wrong tokens sent on fresh connections
+    (which either process may take) count against one limit: every try after the third is refused, whichever
+    process takes it."""
+    port = free_port()
+    env = {
+        **os.environ, "RAQ_DATA_DIR": str(tmp_path), "RAQ_PORT": str(port), "RAQ_API_TOKEN": "the-token",
+        "RAQ_LOGIN_ATTEMPTS_PER_MINUTE": "3", "PYTHONUNBUFFERED": "1",
+    }  # fmt: skip
+    env.pop("RAQ_DATABASE_URL", None)
+    env.pop("DATABASE_URL", None)
+    log = (tmp_path / "serve.log").open("w")
+    process = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", "serve", "--workers", "2"], env=env, stdout=log, stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )  # fmt: skip
+    try:
+        wait_for_health(port, process)
+        deadline = time.monotonic() + 60  # uvicorn's supervisor starts its worker processes
+        while len(subprocess.run(["pgrep", "-P", str(process.pid)], capture_output=True).stdout.split()) < 2:
+            assert time.monotonic() < deadline, "two worker processes never ran"
+            time.sleep(0.5)
+        statuses = []
+        for _ in range(13):
+            request = urllib.request.Request(
+                f"http://127.0.0.1:{port}/login", data=b"token=guess", method="POST",
+                headers={"Content-Type": "application/x-www-form-urlencoded", "Connection": "close"},
+            )  # fmt: skip
+            try:
+                urllib.request.urlopen(request, timeout=10)
+            except urllib.error.HTTPError as error:
+                statuses.append(error.code)
+        assert statuses == [401] * 3 + [429] * 10
+    finally:
+        os.killpg(process.pid, signal.SIGINT)
+        process.wait(timeout=60)
+        log.close()

@@ -222,9 +222,8 @@ def login(
     target = _local_path(next)
     if not settings.api_token:
         return RedirectResponse(target, status_code=303)
-    limit = request.app.state.login_limit
     client = _client_address(request)
-    wait = limit.retry_after(client)
+    wait = store.login_retry_after(client=client, per_minute=settings.login_attempts_per_minute)
     if wait is not None:
         refused = _page(
             request, "login.html", settings, store, status_code=429, title="Log in", next=target,
@@ -233,7 +232,7 @@ def login(
         refused.headers["Retry-After"] = str(wait)
         return refused
     if not hmac.compare_digest(token.strip().encode(), settings.api_token.encode()):
-        limit.failed(client)
+        store.login_failed(client=client)
         return _page(
             request, "login.html", settings, store, status_code=401, title="Log in", next=target,
             error="That token is not right.",

@@ -6,6 +6,7 @@ from app.store.models import (
     INT64_MAX,
     GoalExample,
     GoalSet,
+    LoginFailure,
     LoginSession,
     Metric,
     Query,
@@ -20,6 +21,7 @@ from app.store.store import AnsweredQuery, GoalImage, Store, seconds_since
 __all__ = [
     "INT32_MAX",
     "INT64_MAX",
+    "LoginFailure",
     "LoginSession",
     "AnsweredQuery",
     "Conflict",

@@ -203,6 +203,19 @@ class Rollout(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
+class LoginFailure(Base):
+    """A wrong token at /login, by client address. The login rate limit counts these rows (by the database's
+    clock), so every server process and host shares one limit; rows older than the limit's window are deleted as
+    new ones come."""
+
+    __tablename__ = "login_failures"
+    __table_args__ = (Index("ix_login_failures_client_failed_at", "client", "failed_at"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    client: Mapped[str] = mapped_column(String(200))
+    failed_at: Mapped[datetime] = mapped_column(UTCDateTime, index=True)
+
+
 class LoginSession(Base):
     """A browser's login: the cookie holds a random secret, this row only its SHA-256. Deleting the row (logout,
     `raq sessions --end-all`) ends the session; so does changing RAQ_API_TOKEN (the row keeps a keyed hash of the

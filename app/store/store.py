@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from sqlalchemy import delete, func, or_, select, update
+from sqlalchemy import delete, func, insert, or_, select, type_coerce, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm.attributes import set_committed_value
 
@@ -20,6 +20,7 @@ from app.store.models import (
     Event,
     GoalExample,
     GoalSet,
+    LoginFailure,
     LoginSession,
     Metric,
     Query,
@@ -28,6 +29,7 @@ from app.store.models import (
     Run,
     RunPhase,
     RunStatus,
+    UTCDateTime,
     utcnow,
 )
 
@@ -789,6 +791,32 @@ class Store(Database):
             return int(result.rowcount or 0)
 
     # ---------------------------------------------------------------- login sessions
+    # ------------------------------------------------------------------ login rate limit
+    LOGIN_WINDOW_SECONDS = 60.0
+
+    def login_retry_after(self, *, client: str, per_minute: int) -> int | None:
+        """Seconds until `client` may try a token again: at most `per_minute` wrong tokens in any 60 s, counted
+        across every server process and host by the database's clock. None when it may try now."""
+        window = self.LOGIN_WINDOW_SECONDS
+        with self.reading() as session:
+            recent = session.scalars(
+                select(LoginFailure.failed_at)
+                .where(LoginFailure.client == client[:200], LoginFailure.failed_at > self._db_now(window))
+                .order_by(LoginFailure.failed_at)
+            ).all()
+            if len(recent) < per_minute:
+                return None
+            now = session.scalar(select(type_coerce(self._db_now(), UTCDateTime)))
+        frees_a_try = recent[len(recent) - per_minute]  # once this one is older than the window, one more try
+        return max(1, math.ceil((frees_a_try - now).total_seconds() + window))
+
+    def login_failed(self, *, client: str) -> None:
+        """Count a wrong token from `client`; failures older than the window go on the way."""
+        with self.writing() as session:
+            window_start = self._db_now(self.LOGIN_WINDOW_SECONDS)
+            session.execute(delete(LoginFailure).where(LoginFailure.failed_at <= window_start))
+            session.execute(insert(LoginFailure).values(client=client[:200], failed_at=self._db_now()))
+
     def create_session(
         self, *, secret_hash: str, token_fingerprint: str, max_age_seconds: float, client: str = ""
     ) -> None:
