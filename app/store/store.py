@@ -790,8 +790,7 @@ class Store(Database):
             result = session.execute(delete(Metric).where(Metric.run_id == run_id, Metric.step > step))
             return int(result.rowcount or 0)
 
-    # ---------------------------------------------------------------- login sessions
-    # ------------------------------------------------------------------ login rate limit
+    # ---------------------------------------------------------------- login rate limit
     LOGIN_WINDOW_SECONDS = 60.0
 
     def login_retry_after(self, *, client: str, per_minute: int) -> int | None:
@@ -817,6 +816,7 @@ class Store(Database):
             session.execute(delete(LoginFailure).where(LoginFailure.failed_at <= window_start))
             session.execute(insert(LoginFailure).values(client=client[:200], failed_at=self._db_now()))
 
+    # ---------------------------------------------------------------- login sessions
     def create_session(
         self, *, secret_hash: str, token_fingerprint: str, max_age_seconds: float, client: str = ""
     ) -> None:
