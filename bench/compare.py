@@ -70,6 +70,9 @@ def by_method(run_dirs: list[Path], out: Path, title: str, until: int | None = N
     step compared (the comparison's horizon)."""
     runs: dict[str, list[tuple[dict[str, object], list[tuple[float, float]]]]] = {}
     for run_dir in run_dirs:
+        if not (run_dir / "summary.json").exists():  # a run that died before its first summary
+            print(f"{run_dir}: no summary.json, left out", file=sys.stderr)
+            continue
         summary = json.loads((run_dir / "summary.json").read_text())
         curve = [(step, value) for step, value in success_curve(run_dir) if until is None or step <= until]
         runs.setdefault(method_of(summary), []).append((summary, curve))
@@ -83,6 +86,9 @@ def by_method(run_dirs: list[Path], out: Path, title: str, until: int | None = N
     for method in methods:
         curves = [curve for _, curve in runs[method]]
         points = mean_and_spread([{int(step): value for step, value in curve} for curve in curves])
+        if not points:  # its seeds share no evaluation (one stopped before its first)
+            lines.append(f"| {method} | {len(curves)} | no evaluation every seed reached | - | - | - | - | - |")
+            continue
         label = f"{method} ({len(curves)} seeds)"
         series[label] = [(step, mean) for step, mean, *_ in points]
         bands[label] = [(step, low, high) for step, _, low, high, _ in points]

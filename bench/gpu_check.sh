@@ -63,16 +63,19 @@ fi
 
 if [ "$phase" = compare ]; then
   methods=${METHODS:-$(python3 -c "from learner.algorithms import ALGORITHMS; print(*ALGORITHMS)")}
+  compared=()  # exactly this phase's runs (not the learn phase's pusher run, stopped at its first 90%)
   for method in $methods; do
     for seed in ${SEEDS:-0 1 2}; do
+      compared+=("$runs/compare/pusher-$method-seed$seed")
       python3 bench/learn.py --task pusher --algorithm "$method" --seed "$seed" --max-minutes "$minutes" \
         --total-steps 30000 --set device="${DEVICE:-cuda}" replay_pipeline=device \
-        --out "$runs/pusher-$method-seed$seed" > "$OUT/pusher-$method-seed$seed.txt" 2>&1 &
+        --out "$runs/compare/pusher-$method-seed$seed" > "$OUT/pusher-$method-seed$seed.txt" 2>&1 &
     done
   done
   wait
-  collect
-  python3 bench/compare.py --by-method --until 30000 "$runs"/pusher-*-seed*/ --out "$OUT/pusher-methods.png" \
+  for run in "${compared[@]}"; do tail -n 40 "$run/learn.log" > "$run/learn-tail.log" 2>/dev/null; done
+  tar czf "$OUT/compare.tar.gz" "$runs"/compare/*/curve.csv "$runs"/compare/*/summary.json "$runs"/compare/*/learn-tail.log
+  python3 bench/compare.py --by-method --until 30000 "${compared[@]}" --out "$OUT/pusher-methods.png" \
     --title "pusher: eval success, mean and min-max over seeds" | tee "$OUT/pusher-methods.md"
   exit 0
 fi

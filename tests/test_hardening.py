@@ -6,6 +6,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from datetime import timedelta
 
 import httpx
@@ -384,15 +385,28 @@ def test_the_login_limit_is_one_for_every_server_process_and_ends_with_its_windo
     for client in (first, second):
         refused = client.post("/login", data={"token": TOKEN}, follow_redirects=False)
         assert refused.status_code == 429 and 55 <= int(refused.headers["retry-after"]) <= 60
-    assert store.login_retry_after(client="10.0.0.1", per_minute=4) is None  # another address is not limited
+
+    def failures() -> int:
+        with store.reading() as session:
+            return session.scalar(sa.select(sa.func.count()).select_from(LoginFailure)) or 0
+
+    assert failures() == 4  # the refused tries were not counted
     with store.writing() as session:  # the two oldest failures age past the window: two more tries
         oldest = session.scalars(sa.select(LoginFailure.id).order_by(LoginFailure.id).limit(2)).all()
         aged = utcnow() - timedelta(seconds=61)
         session.execute(sa.update(LoginFailure).where(LoginFailure.id.in_(oldest)).values(failed_at=aged))
     assert second.post("/login", data={"token": "guess"}).status_code == 401
+    assert failures() == 3  # the aged rows went when the next try was counted
     assert first.post("/login", data={"token": TOKEN}, follow_redirects=False).status_code == 303
-    with store.reading() as session:  # the aged rows went when the next failure was counted
-        assert session.scalar(sa.select(sa.func.count()).select_from(LoginFailure)) == 3
+    assert failures() == 3  # a right token is not a failure
+
+
+def test_parallel_guesses_from_one_address_cannot_all_pass_the_login_limit(store: Store) -> None:
+    """The check and the count are one step per address: of 12 tries at once, exactly the limit's 5 may go on."""
+    with ThreadPoolExecutor(max_workers=12) as pool:
+        waits = list(pool.map(lambda _: store.login_attempt(client="10.9.9.9", per_minute=5), range(12)))
+    assert waits.count(None) == 5 and all(wait is not None and 1 <= wait <= 60 for wait in waits if wait is not None)
+    assert store.login_attempt(client="10.9.9.10", per_minute=5) is None  # another address is not limited
 
 
 def test_every_response_carries_nosniff_and_a_content_security_policy(

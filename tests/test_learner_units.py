@@ -518,5 +518,8 @@ def test_the_method_comparison_averages_seeds_where_all_evaluated_and_counts_who
     assert lines[3].split(" | ")[2:4] == ["3,000", "0 of 1"] and lines[3].endswith("| - |")
     with Image.open(tmp_path / "methods.png") as image:
         assert image.size == (900, 500)
+    assert by_method([*runs, run("pusher-vice-seed0", [])], tmp_path / "m.png", "pusher")[3].startswith(
+        "| vice | 1 | no evaluation every seed reached"
+    )  # a run stopped before its first evaluation: a row that says so
     with pytest.raises(SystemExit, match="cannot tell the method"):
         by_method([run("door-seed0", [0.0])], tmp_path / "x.png", "door")

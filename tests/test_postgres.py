@@ -12,6 +12,7 @@ import subprocess
 import tempfile
 import threading
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -110,10 +111,20 @@ def test_the_store_works_on_postgresql(postgres_url: str) -> None:
     assert store.latest_metric(run_id=run_id, name="eval/success_rate") == 0.5
     assert store.heartbeat(run_id=run_id, worker=store.get_run(run_id=run_id).worker, step=7) is True
     assert store.get_run(run_id=run_id).heartbeat_at.tzinfo is not None
-    for _ in range(3):  # the login rate limit, by PostgreSQL's clock
-        store.login_failed(client="10.1.2.3")
-    assert store.login_retry_after(client="10.1.2.3", per_minute=4) is None
-    assert 55 <= (store.login_retry_after(client="10.1.2.3", per_minute=3) or 0) <= 60
+    store.dispose()
+
+
+def test_the_login_limit_on_postgresql_lets_exactly_the_limit_through_a_burst(postgres_url: str) -> None:
+    """By PostgreSQL's clock, and one try per address at a time (an advisory lock): of 12 parallel tries from
+    one address exactly 5 may go on; a right token (login_succeeded) is not counted."""
+    upgrade(postgres_url)
+    store = Store(postgres_url)
+    with ThreadPoolExecutor(max_workers=12) as pool:
+        waits = list(pool.map(lambda _: store.login_attempt(client="10.1.2.3", per_minute=5), range(12)))
+    assert waits.count(None) == 5 and all(55 <= wait <= 60 for wait in waits if wait is not None)
+    assert store.login_attempt(client="10.1.2.4", per_minute=5) is None
+    store.login_succeeded(client="10.1.2.4")  # that try was the right token: with a limit of 1 it may try again
+    assert store.login_attempt(client="10.1.2.4", per_minute=1) is None
     store.dispose()
 
 

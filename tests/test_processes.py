@@ -11,8 +11,9 @@ import urllib.request
 from pathlib import Path
 
 from conftest import free_port
+from sqlalchemy import func, select
 
-from app.store import Store
+from app.store import LoginFailure, Store
 
 
 def wait_for_health(port: int, process: subprocess.Popen, timeout: float = 90) -> dict:
@@ -58,6 +59,12 @@ def test_raq_up_serves_health_runs_a_learner_and_stops_cleanly(tmp_path: Path) -
     assert "web" in output and "learner" in output and "raq up: stopped" in output
 
 
+def server_workers(supervisor: int) -> list[int]:
+    """The worker processes uvicorn's supervisor spawned (not multiprocessing's resource tracker)."""
+    children = subprocess.run(["pgrep", "-P", str(supervisor)], capture_output=True, text=True).stdout.split()
+    return [int(pid) for pid in children if "spawn_main" in Path(f"/proc/{pid}/cmdline").read_text(errors="replace")]
+
+
 def test_raq_serve_with_two_workers_shares_the_login_limit_between_its_processes(tmp_path: Path) -> None:
     """`raq serve --workers 2`: two server processes on one SQLite file; wrong tokens sent on fresh connections
     (which either process may take) count against one limit: every try after the third is refused, whichever
@@ -76,8 +83,8 @@ def test_raq_serve_with_two_workers_shares_the_login_limit_between_its_processes
     )  # fmt: skip
     try:
         wait_for_health(port, process)
-        deadline = time.monotonic() + 60  # uvicorn's supervisor starts its worker processes
-        while len(subprocess.run(["pgrep", "-P", str(process.pid)], capture_output=True).stdout.split()) < 2:
+        deadline = time.monotonic() + 60  # uvicorn's supervisor spawns its worker processes
+        while len(server_workers(process.pid)) < 2:
             assert time.monotonic() < deadline, "two worker processes never ran"
             time.sleep(0.5)
         statuses = []
@@ -91,6 +98,10 @@ def test_raq_serve_with_two_workers_shares_the_login_limit_between_its_processes
             except urllib.error.HTTPError as error:
                 statuses.append(error.code)
         assert statuses == [401] * 3 + [429] * 10
+        store = Store(f"sqlite:///{tmp_path / 'raq.sqlite3'}")
+        with store.reading() as session:  # the three wrong tokens, counted once each, the refused tries not
+            assert session.scalar(select(func.count()).select_from(LoginFailure)) == 3
+        store.dispose()
     finally:
         os.killpg(process.pid, signal.SIGINT)
         process.wait(timeout=60)

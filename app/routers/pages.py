@@ -223,7 +223,7 @@ def login(
     if not settings.api_token:
         return RedirectResponse(target, status_code=303)
     client = _client_address(request)
-    wait = store.login_retry_after(client=client, per_minute=settings.login_attempts_per_minute)
+    wait = store.login_attempt(client=client, per_minute=settings.login_attempts_per_minute)  # counted as failed
     if wait is not None:
         refused = _page(
             request, "login.html", settings, store, status_code=429, title="Log in", next=target,
@@ -232,11 +232,11 @@ def login(
         refused.headers["Retry-After"] = str(wait)
         return refused
     if not hmac.compare_digest(token.strip().encode(), settings.api_token.encode()):
-        store.login_failed(client=client)
         return _page(
             request, "login.html", settings, store, status_code=401, title="Log in", next=target,
             error="That token is not right.",
         )  # fmt: skip
+    store.login_succeeded(client=client)
     secret = new_session_secret()
     store.create_session(
         secret_hash=secret_hash(secret),

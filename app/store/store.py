@@ -56,6 +56,9 @@ class AnsweredQuery:
 
 # PostgreSQL advisory lock key (any constant) under which an answer takes the next answer_seq.
 ANSWER_SEQ_LOCK = 0x52_41_51_01
+# PostgreSQL advisory lock class (the first of two keys; the second is the client address's hash) under which one
+# login try per address is checked and counted.
+LOGIN_LOCK = 0x52_41_51_02
 # The order learners take queued runs in: highest priority first, then the oldest.
 _CLAIM_ORDER = (Run.priority.desc(), Run.id)
 
@@ -793,28 +796,37 @@ class Store(Database):
     # ---------------------------------------------------------------- login rate limit
     LOGIN_WINDOW_SECONDS = 60.0
 
-    def login_retry_after(self, *, client: str, per_minute: int) -> int | None:
-        """Seconds until `client` may try a token again: at most `per_minute` wrong tokens in any 60 s, counted
-        across every server process and host by the database's clock. None when it may try now."""
-        window = self.LOGIN_WINDOW_SECONDS
-        with self.reading() as session:
+    def login_attempt(self, *, client: str, per_minute: int) -> int | None:
+        """A login try from `client`: None when it may try now (the try is then counted as a failure in the same
+        transaction, undone by `login_succeeded`), else the seconds until it may. At most `per_minute` failures in
+        any 60 s, by the database's clock, across every server process and host; tries from one address are
+        checked and counted one at a time, so a burst of parallel guesses cannot all pass the check."""
+        window, client = self.LOGIN_WINDOW_SECONDS, client[:200]
+        with self.writing() as session:  # SQLite: one writer at a time already
+            if self.engine.dialect.name == "postgresql":  # one try per address at a time, until the commit
+                session.execute(select(func.pg_advisory_xact_lock(LOGIN_LOCK, func.hashtext(client))))
+            session.execute(delete(LoginFailure).where(LoginFailure.failed_at <= self._db_now(window)))
             recent = session.scalars(
-                select(LoginFailure.failed_at)
-                .where(LoginFailure.client == client[:200], LoginFailure.failed_at > self._db_now(window))
-                .order_by(LoginFailure.failed_at)
+                select(LoginFailure.failed_at).where(LoginFailure.client == client).order_by(LoginFailure.failed_at)
             ).all()
             if len(recent) < per_minute:
+                session.execute(insert(LoginFailure).values(client=client, failed_at=self._db_now()))
                 return None
             now = session.scalar(select(type_coerce(self._db_now(), UTCDateTime)))
         frees_a_try = recent[len(recent) - per_minute]  # once this one is older than the window, one more try
         return max(1, math.ceil((frees_a_try - now).total_seconds() + window))
 
-    def login_failed(self, *, client: str) -> None:
-        """Count a wrong token from `client`; failures older than the window go on the way."""
+    def login_succeeded(self, *, client: str) -> None:
+        """The try `login_attempt` counted was the right token: it is not a failure (the address's latest)."""
         with self.writing() as session:
-            window_start = self._db_now(self.LOGIN_WINDOW_SECONDS)
-            session.execute(delete(LoginFailure).where(LoginFailure.failed_at <= window_start))
-            session.execute(insert(LoginFailure).values(client=client[:200], failed_at=self._db_now()))
+            latest = (
+                select(LoginFailure.id)
+                .where(LoginFailure.client == client[:200])
+                .order_by(LoginFailure.id.desc())
+                .limit(1)
+                .scalar_subquery()
+            )
+            session.execute(delete(LoginFailure).where(LoginFailure.id == latest))
 
     # ---------------------------------------------------------------- login sessions
     def create_session(
