@@ -89,7 +89,7 @@ def by_method(run_dirs: list[Path], out: Path, title: str, until: int | None = N
         if not points:  # its seeds share no evaluation (one stopped before its first)
             lines.append(f"| {method} | {len(curves)} | no evaluation every seed reached | - | - | - | - | - |")
             continue
-        label = f"{method} ({len(curves)} seeds)"
+        label = f"{method} ({len(curves)} seed{'' if len(curves) == 1 else 's'})"
         series[label] = [(step, mean) for step, mean, *_ in points]
         bands[label] = [(step, low, high) for step, _, low, high, _ in points]
         means = [mean for _, mean, *_ in points]
