@@ -11,17 +11,19 @@ import shutil
 import subprocess
 import tempfile
 import threading
+import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
 from conftest import free_port
-from sqlalchemy import inspect
+from sqlalchemy import inspect, text
 from test_store import _claim_all  # the same racing worker as on SQLite
 
 from app.migrate import downgrade, upgrade
 from app.store import Conflict, Store
+from app.store.db import IDLE_PING_S
 
 PNG = b"\x89PNG\r\n\x1a\nquery"
 
@@ -156,3 +158,54 @@ def test_two_different_answers_at_once_on_postgresql_keep_exactly_one(postgres_u
         assert outcomes.count("conflict") == 1  # one answer wins, the other is refused
         assert [o for o in outcomes if o != "conflict"] == [kept.answer] and kept.labeler == str(kept.answer)
     store.dispose()
+
+
+def test_answers_at_once_on_postgresql_reach_a_polling_learner_each_exactly_once(postgres_url: str) -> None:
+    """40 labellers answer 200 queries at once while a learner polls "answers since my cursor": every answer
+    reaches it once, so no number was given out of commit order (a cursor that passed an answer still being
+    written would skip it for good), and each answer's event is logged."""
+    upgrade(postgres_url)
+    store, learner = Store(postgres_url), Store(postgres_url)
+    run_id = store.create_run(env_id="VisualPusher-v0", algorithm="sparse", config={}).id
+    ids = [
+        store.post_query(run_id=run_id, env_step=i, model_png=PNG, display_png=PNG, score=0.0).id for i in range(200)
+    ]
+    seen: list[int] = []
+    done = threading.Event()
+
+    def poll() -> None:
+        cursor = 0
+        while True:
+            finished = done.is_set()
+            for answer in learner.new_answers(run_id=run_id, since_seq=cursor):
+                seen.append(answer.query_id)
+                cursor = max(cursor, answer.answer_seq)
+            if finished:
+                return
+
+    reader = threading.Thread(target=poll)
+    reader.start()
+    with ThreadPoolExecutor(max_workers=40) as pool:
+        list(pool.map(lambda query_id: store.answer_query(query_id=query_id, success=True, labeler="l"), ids))
+    done.set()
+    reader.join(timeout=60)
+    assert sorted(seen) == ids
+    events = store.events(run_id=run_id, limit=1000)
+    assert sum("answered yes by l" in event.message for event in events) == 200
+    store.dispose()
+    learner.dispose()
+
+
+def test_a_connection_dropped_by_the_server_is_replaced_after_it_idled(postgres_url: str) -> None:
+    """PostgreSQL restarted (here: every backend terminated): a pooled connection that idled past IDLE_PING_S is
+    pinged, found dead and replaced, so the next call works."""
+    upgrade(postgres_url)
+    store, admin = Store(postgres_url), Store(postgres_url)
+    run_id = store.create_run(env_id="VisualPusher-v0", algorithm="sparse", config={}).id
+    with admin.engine.connect() as connection:
+        others = "pid <> pg_backend_pid() AND datname = 'raq'"
+        connection.execute(text(f"SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE {others}"))
+    time.sleep(IDLE_PING_S + 0.2)
+    assert store.get_run(run_id=run_id).id == run_id
+    store.dispose()
+    admin.dispose()

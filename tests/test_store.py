@@ -346,3 +346,24 @@ def test_many_threads_answering_while_a_learner_beats_all_land_numbered_in_order
     assert sorted(a.query_id for a in answers) == ids
     assert all(a.success == (a.query_id % 2 == 0) for a in answers)
     learner.dispose()
+
+
+def test_answer_numbers_go_on_from_the_answers_given_before_the_counter_existed(tmp_path: Path) -> None:
+    """Migration 0005 starts the answer counter at the highest answer_seq already given."""
+    url = f"sqlite:///{tmp_path / 'old.sqlite3'}"
+    upgrade(url, "0004_login_failures")
+    store = Store(url)
+    run_id = make_run(store)
+    ids = [post(store, run_id, env_step=i) for i in range(3)]
+    store.dispose()
+    with sa.create_engine(url).begin() as connection:  # answers as 0004's store numbered them
+        for seq, query_id in enumerate(ids[:2], start=1):
+            connection.execute(
+                sa.text("UPDATE queries SET status = 'answered', answer = 1, answer_seq = :seq WHERE id = :id"),
+                {"seq": seq, "id": query_id},
+            )
+    upgrade(url)
+    store = Store(url)
+    store.answer_query(query_id=ids[2], success=False)
+    assert [a.answer_seq for a in store.new_answers(run_id=run_id, since_seq=0)] == [1, 2, 3]
+    store.dispose()

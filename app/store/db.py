@@ -7,7 +7,7 @@ from collections.abc import Iterator
 from contextlib import AbstractContextManager, contextmanager, nullcontext
 from pathlib import Path
 
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Engine, create_engine, event, exc
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -15,6 +15,10 @@ SQLITE_BUSY_TIMEOUT_MS = 30_000
 POOL_SIZE = 40
 """Connections each process keeps open: as many as the server's worker threads (anyio's 40), so that a burst of
 requests does not open (PostgreSQL: fork a backend for) and close overflow connections one request each."""
+IDLE_PING_S = 1.0
+"""A pooled PostgreSQL connection that has been idle this long is pinged before use (a restarted or failed-over
+server has dropped it, and the pool then opens a new one); one in steady use is not. SQLAlchemy's pool_pre_ping
+pinged on every checkout: one more round trip per request, +20 ms on the answers' p99 under bench/load.py."""
 SQLITE_LOCK_POLL_S = (0.0005, 0.005)
 """A writer waiting for another process's write lock retries after 0.5 ms, doubling up to 5 ms."""
 
@@ -66,6 +70,22 @@ def _configure_sqlite(engine: Engine) -> None:
             connection.exec_driver_sql("BEGIN")
 
 
+def _ping_idle_connections(engine: Engine) -> None:
+    @event.listens_for(engine, "checkin")
+    def _on_checkin(_dbapi_connection, record) -> None:  # type: ignore[no-untyped-def]
+        record.info["returned_at"] = time.monotonic()
+
+    @event.listens_for(engine, "checkout")
+    def _on_checkout(dbapi_connection, record, _proxy) -> None:  # type: ignore[no-untyped-def]
+        returned_at = record.info.get("returned_at")  # (None: opened just now)
+        if returned_at is None or time.monotonic() - returned_at < IDLE_PING_S:
+            return
+        try:
+            engine.dialect.do_ping(dbapi_connection)
+        except engine.dialect.loaded_dbapi.Error as error:  # the pool drops it and checks out another
+            raise exc.DisconnectionError(f"a pooled connection idle for {IDLE_PING_S} s is gone") from error
+
+
 def make_engine(url: str) -> Engine:
     parsed = make_url(url)
     if parsed.get_backend_name() == "sqlite":
@@ -77,7 +97,9 @@ def make_engine(url: str) -> Engine:
         engine = create_engine(url, connect_args={"timeout": SQLITE_BUSY_TIMEOUT_MS / 1000}, **pool)
         _configure_sqlite(engine)
         return engine
-    return create_engine(url, pool_pre_ping=True, pool_size=POOL_SIZE, max_overflow=0)
+    engine = create_engine(url, pool_size=POOL_SIZE, max_overflow=0)
+    _ping_idle_connections(engine)
+    return engine
 
 
 class Database:
@@ -95,6 +117,7 @@ class Database:
         )
         self._read = sessionmaker(self.engine, expire_on_commit=False)
         self._write = sessionmaker(self.engine.execution_options(sqlite_immediate=True), expire_on_commit=False)
+        self._autocommit = sessionmaker(self.engine.execution_options(isolation_level="AUTOCOMMIT"))
 
     @contextmanager
     def reading(self) -> Iterator[Session]:
@@ -104,6 +127,13 @@ class Database:
     @contextmanager
     def writing(self) -> Iterator[Session]:
         with self._write_turn, self._write() as session, session.begin():
+            yield session
+
+    @contextmanager
+    def autocommitting(self) -> Iterator[Session]:
+        """Each statement in its own transaction, committed by the database before it answers (PostgreSQL: one
+        round trip for a statement that must not hold its locks while this process waits for anything)."""
+        with self._autocommit() as session:
             yield session
 
     def dispose(self) -> None:

@@ -203,6 +203,17 @@ class Rollout(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
+class AnswerCounter(Base):
+    """The last answer number given (one row, id 1). An answer takes the next number by updating this row, whose
+    lock it holds until it commits: numbers follow commit order, so a learner reading answers "since" a number
+    never passes one still being written."""
+
+    __tablename__ = "answer_counter"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    value: Mapped[int] = mapped_column(BigInteger)
+
+
 class LoginFailure(Base):
     """A wrong token at /login, by client address. The login rate limit counts these rows (by the database's
     clock), so every server process and host shares one limit; rows older than the limit's window are deleted as
