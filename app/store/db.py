@@ -115,9 +115,13 @@ class Database:
         self._write_turn: AbstractContextManager = (
             threading.RLock() if self.engine.dialect.name == "sqlite" else nullcontext()
         )
-        self._read = sessionmaker(self.engine, expire_on_commit=False)
+        autocommit = self.engine.execution_options(isolation_level="AUTOCOMMIT")
+        # PostgreSQL reads without BEGIN and ROLLBACK: under READ COMMITTED each statement sees what was committed
+        # when it started, in a transaction or not, so a read-only session loses nothing and saves two round trips.
+        postgresql = self.engine.dialect.name == "postgresql"
+        self._read = sessionmaker(autocommit if postgresql else self.engine, expire_on_commit=False)
         self._write = sessionmaker(self.engine.execution_options(sqlite_immediate=True), expire_on_commit=False)
-        self._autocommit = sessionmaker(self.engine.execution_options(isolation_level="AUTOCOMMIT"))
+        self._autocommit = sessionmaker(autocommit)
 
     @contextmanager
     def reading(self) -> Iterator[Session]:
