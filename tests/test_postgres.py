@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 from conftest import free_port
 from sqlalchemy import inspect, text
-from test_store import _claim_all  # the same racing worker as on SQLite
+from test_store import _claim_all, check_answer_numbers_heal  # the same checks as on SQLite
 
 from app.migrate import downgrade, upgrade
 from app.store import Conflict, Store
@@ -209,3 +209,46 @@ def test_a_connection_dropped_by_the_server_is_replaced_after_it_idled(postgres_
     assert store.get_run(run_id=run_id).id == run_id
     store.dispose()
     admin.dispose()
+
+
+def test_answer_numbers_heal_on_postgresql(postgres_url: str) -> None:
+    upgrade(postgres_url)
+    store = Store(postgres_url)
+    check_answer_numbers_heal(store)
+    store.dispose()
+
+
+def test_an_answer_on_postgresql_waits_for_the_number_before_it_to_commit(postgres_url: str) -> None:
+    """Numbers follow commit order: while another transaction holds the counter (an answer still being written),
+    an answer waits, and then takes a higher number. What it returns is the stored row."""
+    upgrade(postgres_url)
+    store = Store(postgres_url)
+    run_id = store.create_run(env_id="VisualPusher-v0", algorithm="sparse", config={}).id
+    query_id = store.post_query(
+        run_id=run_id, env_step=3, model_png=PNG, display_png=PNG, score=2.5, info={"success": 1.0}
+    ).id
+    store.skip_query(query_id=query_id)  # a skipped query can still be answered
+    returned: list = []
+    with store.engine.connect() as holder:
+        held = holder.execute(text("UPDATE answer_counter SET value = value + 1 RETURNING value")).scalar_one()
+        answering = threading.Thread(
+            target=lambda: returned.append(store.answer_query(query_id=query_id, success=True, labeler="ann"))
+        )
+        answering.start()
+        answering.join(timeout=0.5)
+        assert answering.is_alive() and not returned  # waiting for the held number to commit
+        holder.commit()
+    answering.join(timeout=10)
+    (query,) = returned
+    assert query.answer_seq == held + 1
+    assert (query.id, query.run_id, query.status, query.answer, query.labeler) == (
+        query_id,
+        run_id,
+        "answered",
+        True,
+        "ann",
+    )
+    assert query.info == {"success": 1.0} and query.score == 2.5 and query.answered_at.tzinfo is not None
+    stored = store.get_query(query_id=query_id)
+    assert (stored.answer_seq, stored.answered_at, stored.status) == (query.answer_seq, query.answered_at, "answered")
+    store.dispose()

@@ -367,3 +367,26 @@ def test_answer_numbers_go_on_from_the_answers_given_before_the_counter_existed(
     store.answer_query(query_id=ids[2], success=False)
     assert [a.answer_seq for a in store.new_answers(run_id=run_id, since_seq=0)] == [1, 2, 3]
     store.dispose()
+
+
+def check_answer_numbers_heal(store: Store) -> None:
+    """The counter behind the numbers already given (an older server process answered while this one migrated)
+    or missing: the next answer still takes a new, higher number."""
+    run_id = make_run(store)
+    ids = [post(store, run_id, env_step=i) for i in range(3)]
+    first = store.answer_query(query_id=ids[0], success=True).answer_seq
+    with store.engine.begin() as connection:  # numbered past the counter, as the old code did
+        connection.execute(
+            sa.text("UPDATE queries SET status = 'answered', answer = true, answer_seq = :seq WHERE id = :id"),
+            {"seq": first + 6, "id": ids[1]},
+        )
+    assert store.answer_query(query_id=ids[2], success=False).answer_seq == first + 7
+    with store.engine.begin() as connection:
+        connection.execute(sa.text("DELETE FROM answer_counter"))
+    store.undo_answer(query_id=ids[2])
+    assert store.answer_query(query_id=ids[2], success=True).answer_seq == first + 7  # (undone: free again)
+    assert [a.answer_seq for a in store.new_answers(run_id=run_id, since_seq=0)] == [first, first + 6, first + 7]
+
+
+def test_answer_numbers_heal_when_the_counter_fell_behind_or_is_missing(store: Store) -> None:
+    check_answer_numbers_heal(store)

@@ -121,7 +121,7 @@ class Database:
         postgresql = self.engine.dialect.name == "postgresql"
         self._read = sessionmaker(autocommit if postgresql else self.engine, expire_on_commit=False)
         self._write = sessionmaker(self.engine.execution_options(sqlite_immediate=True), expire_on_commit=False)
-        self._autocommit = sessionmaker(autocommit)
+        self._autocommit = sessionmaker(autocommit, expire_on_commit=False)
 
     @contextmanager
     def reading(self) -> Iterator[Session]:

@@ -17,6 +17,7 @@ from sqlalchemy.orm.attributes import set_committed_value
 from app.store.db import Database
 from app.store.errors import Conflict, InvalidInput, NotFound
 from app.store.models import (
+    INT64_MAX,
     AnswerCounter,
     Event,
     GoalExample,
@@ -62,13 +63,21 @@ LOGIN_LOCK = 0x52_41_51_02
 _CLAIM_ORDER = (Run.priority.desc(), Run.id)
 
 
-# The next answer number (models.AnswerCounter): the counter row stays locked until the answer commits.
-_TAKE_ANSWER_SEQ = (
-    update(AnswerCounter)
-    .where(AnswerCounter.id == 1)
-    .values(value=AnswerCounter.value + 1)
-    .returning(AnswerCounter.value)
-)
+# The next answer number (models.AnswerCounter), as an upsert: the counter row stays locked until the answer
+# commits, so numbers rise in commit order. It also heals: never below the highest number given (a row missing,
+# or answers numbered by an older server process while this one migrated). {greatest}: the dialect's two-argument
+# maximum; {condition}: when to take a number at all.
+_NEXT_ANSWER_SEQ_SQL = """
+    INSERT INTO answer_counter (id, value)
+    SELECT 1, (SELECT COALESCE(MAX(answer_seq), 0) + 1 FROM queries) WHERE {condition}
+    ON CONFLICT (id) DO UPDATE SET value = {greatest}(answer_counter.value + 1, excluded.value)
+    RETURNING value
+"""
+_TAKE_ANSWER_SEQ = text(_NEXT_ANSWER_SEQ_SQL.format(condition="true", greatest="MAX"))  # SQLite
+_NEXT_ANSWER_SEQ_IF_UNANSWERED = _NEXT_ANSWER_SEQ_SQL.format(
+    condition="EXISTS (SELECT 1 FROM queries WHERE id = :query_id AND status <> :answered)", greatest="GREATEST"
+)  # PostgreSQL, in the statement below
+_ANSWER_COUNTER_VALUE = select(AnswerCounter.value).where(AnswerCounter.id == 1).scalar_subquery()
 # An answer on PostgreSQL as one statement in its own transaction (autocommit): take the next number, set the
 # answer if the query is not answered yet, log the event. The counter's lock is held from the first UPDATE to the
 # commit inside the server, never while this process waits for a thread or the GIL (with a lock taken and the
@@ -79,11 +88,7 @@ _QUERY_COLUMNS = [column for column in Query.__table__.columns if column.key not
 _ANSWER_IN_ONE_STATEMENT = (
     text(
         f"""
-        WITH next_seq AS (
-            UPDATE answer_counter SET value = value + 1
-            WHERE id = 1 AND EXISTS (SELECT 1 FROM queries WHERE id = :query_id AND status <> :answered)
-            RETURNING value
-        ), answered AS (
+        WITH next_seq AS ({_NEXT_ANSWER_SEQ_IF_UNANSWERED}), answered AS (
             UPDATE queries SET status = :answered, answer = :answer, labeler = :labeler, answered_at = :now,
                 answer_seq = next_seq.value
             FROM next_seq
@@ -734,7 +739,16 @@ class Store(Database):
         with self.writing() as session:
             rows = session.execute(
                 update(Query)
-                .where(Query.run_id == run_id, Query.status == QueryStatus.ANSWERED, Query.answer_seq > since_seq)
+                .where(
+                    Query.run_id == run_id,
+                    Query.status == QueryStatus.ANSWERED,
+                    Query.answer_seq > since_seq,
+                    # No number above the counter as this statement's snapshot saw it: a row this UPDATE waits for
+                    # is re-read at its newest version (PostgreSQL), which may carry a number taken after an
+                    # answer the snapshot cannot see yet (undone and answered again meanwhile); returning it would
+                    # move the learner's cursor past that answer for good.
+                    Query.answer_seq <= func.coalesce(_ANSWER_COUNTER_VALUE, INT64_MAX),
+                )  # fmt: skip
                 .values(used_at=func.coalesce(Query.used_at, utcnow()))
                 .returning(Query.id, Query.answer_seq, Query.answer, Query.model_png, Query.env_step)
                 .execution_options(synchronize_session=False)
