@@ -418,9 +418,12 @@ class Store(Database):
         if self.engine.dialect.name == "sqlite":
             modifiers = [f"-{float(minus_seconds):.6f} seconds"] if minus_seconds else []
             return func.strftime("%Y-%m-%d %H:%M:%f000", "now", *modifiers)
+        # statement_timestamp, not now(): now() is when the transaction began, and a login try that waited for
+        # another one's lock would stamp its failure, or measure its wait, from before that try was counted
+        # (waits of 61 s for a 60 s window under load).
         if minus_seconds:
-            return func.now() - timedelta(seconds=minus_seconds)
-        return func.now()
+            return func.statement_timestamp() - timedelta(seconds=minus_seconds)
+        return func.statement_timestamp()
 
     def heartbeat(
         self, *, run_id: int, worker: str, step: int | None = None, status: str | None = None, phase: str | None = None
