@@ -79,7 +79,7 @@ _NEXT_ANSWER_SEQ_IF_UNANSWERED = _NEXT_ANSWER_SEQ_SQL.format(
 )  # PostgreSQL, in the statement below
 _ANSWER_COUNTER_VALUE = select(AnswerCounter.value).where(AnswerCounter.id == 1).scalar_subquery()
 # An answer on PostgreSQL as one statement in its own transaction (autocommit): take the next number, set the
-# answer if the query is not answered yet, log the event. The counter's lock is held from the first UPDATE to the
+# answer if the query is not answered yet, log the event. The counter's row lock is held from taking the number to the
 # commit inside the server, never while this process waits for a thread or the GIL (with a lock taken and the
 # answer written in separate round trips, 11% of the answers waited > 10 ms for it under bench/load.py and the
 # waits queued up into a 120-160 ms p99). A query answered meanwhile (the EXISTS sees the statement's snapshot)
@@ -631,9 +631,8 @@ class Store(Database):
         raise Conflict("could not record the answer: too many concurrent answers, try again")
 
     def _answer_query_once(self, *, query_id: int, success: bool, labeler: str) -> Query:
-        message = (f"query {query_id} answered {'yes' if success else 'no'}" + (f" by {labeler}" if labeler else ""))[
-            :1000
-        ]
+        verdict = "yes" if success else "no"
+        message = (f"query {query_id} answered {verdict}" + (f" by {labeler}" if labeler else ""))[:1000]
         if self.engine.dialect.name == "postgresql":
             with self.autocommitting() as session:
                 answered = session.scalars(
