@@ -7,6 +7,7 @@ from typing import Annotated
 from urllib.parse import urlsplit
 
 from fastapi import Depends, HTTPException, Path, Request, status
+from starlette.concurrency import run_in_threadpool
 
 from app.settings import Settings
 from app.store import INT32_MAX, Store
@@ -15,11 +16,13 @@ SESSION_COOKIE = "raq_session"
 AUTHORISED_STATE = "raq_authorised"  # set in the request's state by app.security.RequestGuard
 
 
-def get_app_settings(request: Request) -> Settings:
+# Dependencies that do no blocking work are `async def`: FastAPI runs a plain `def` dependency in its thread pool,
+# a hand-off that cost more of a request's server time than the database (py-spy under bench/load.py).
+async def get_app_settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def get_store(request: Request) -> Store:
+async def get_store(request: Request) -> Store:
     return request.app.state.store
 
 
@@ -54,9 +57,8 @@ def has_bearer_token(request: Request, token: str) -> bool:
     return scheme.lower() == "bearer" and hmac.compare_digest(credentials.strip().encode(), token.encode())
 
 
-def is_authorised(request: Request, settings: Settings, store: Store) -> bool:
-    """True without a token; with one, when the request carries the bearer token or a live login session.
-    Reads only headers (never the body), so app.security.RequestGuard can call it before the body arrives."""
+def _authorised_by_headers(request: Request, settings: Settings) -> bool | None:
+    """True or False where the headers decide; None where a login session has to be looked up in the store."""
     token = settings.api_token
     if not token or request.scope.get("state", {}).get(AUTHORISED_STATE):
         return True
@@ -65,7 +67,29 @@ def is_authorised(request: Request, settings: Settings, store: Store) -> bool:
     secret = request.cookies.get(SESSION_COOKIE, "")
     if not secret or len(secret) > 200:
         return False
-    return store.session_is_active(secret_hash=secret_hash(secret), token_fingerprint=token_fingerprint(token))
+    return None
+
+
+def _session_is_active(request: Request, settings: Settings, store: Store) -> bool:
+    secret = request.cookies[SESSION_COOKIE]
+    return store.session_is_active(
+        secret_hash=secret_hash(secret), token_fingerprint=token_fingerprint(settings.api_token or "")
+    )
+
+
+def is_authorised(request: Request, settings: Settings, store: Store) -> bool:
+    """True without a token; with one, when the request carries the bearer token or a live login session.
+    Reads only headers (never the body), so app.security.RequestGuard can call it before the body arrives."""
+    decided = _authorised_by_headers(request, settings)
+    return decided if decided is not None else _session_is_active(request, settings, store)
+
+
+async def is_authorised_async(request: Request, settings: Settings, store: Store) -> bool:
+    """is_authorised from the event loop: only a login session's lookup goes to the thread pool."""
+    decided = _authorised_by_headers(request, settings)
+    if decided is not None:
+        return decided
+    return await run_in_threadpool(_session_is_active, request, settings, store)
 
 
 DEFAULT_PORTS = {"http": 80, "https": 443}
@@ -108,7 +132,7 @@ def cross_site_reason(request: Request) -> str | None:
     return None
 
 
-def require_same_origin(request: Request) -> None:
+async def require_same_origin(request: Request) -> None:
     """403 for a write a browser sent on behalf of another site (CSRF, DNS rebinding)."""
     reason = cross_site_reason(request)
     if reason is not None:
@@ -124,17 +148,17 @@ def unauthorised() -> HTTPException:
     )
 
 
-def require_read_access(request: Request, settings: SettingsDep, store: StoreDep) -> None:
+async def require_read_access(request: Request, settings: SettingsDep, store: StoreDep) -> None:
     """Reads need the token too when one is set. RequestGuard has refused such a request already, before its
     body; this dependency documents the 401 in the OpenAPI spec and holds if the guard is ever bypassed."""
-    if not is_authorised(request, settings, store):
+    if not await is_authorised_async(request, settings, store):
         raise unauthorised()
 
 
-def require_write_access(request: Request, settings: SettingsDep, store: StoreDep) -> None:
+async def require_write_access(request: Request, settings: SettingsDep, store: StoreDep) -> None:
     """Writes: first refuse cross-site browser requests (with or without a token), then check the token."""
-    require_same_origin(request)
-    if not is_authorised(request, settings, store):
+    await require_same_origin(request)
+    if not await is_authorised_async(request, settings, store):
         raise unauthorised()
 
 

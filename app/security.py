@@ -14,12 +14,11 @@ from urllib.parse import quote
 
 from fastapi import HTTPException
 from fastapi.responses import JSONResponse, RedirectResponse
-from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import Headers, MutableHeaders
 from starlette.requests import Request
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from app.deps import AUTHORISED_STATE, UNAUTHORISED_DETAIL, is_authorised
+from app.deps import AUTHORISED_STATE, UNAUTHORISED_DETAIL, is_authorised_async
 from app.routers.goal_sets import MAX_FILES_PER_UPLOAD
 from app.settings import Settings
 from app.store import Store
@@ -110,7 +109,7 @@ class RequestGuard:
         method: str = scope["method"]
         if self.settings.api_token and not is_public(path):
             request = Request(scope)  # headers and cookies only; nothing here touches the body
-            if await run_in_threadpool(is_authorised, request, self.settings, self.store):
+            if await is_authorised_async(request, self.settings, self.store):
                 scope.setdefault("state", {})[AUTHORISED_STATE] = True  # the routes' checks need not look again
             else:
                 if method in ("GET", "HEAD") and is_page(path):

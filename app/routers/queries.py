@@ -1,13 +1,19 @@
-"""Queries the learner asks: list, the next one to answer, images, answer, skip, undo."""
+"""Queries the learner asks: list, the next one to answer, images, answer, skip, undo.
+
+The labelling endpoints are `async def` and hand only their store call to the thread pool. A plain `def` endpoint
+costs two hand-offs to the pool (the call, then FastAPI's validation of the returned model), which under
+bench/load.py took more of the server's time per request than the database did.
+"""
 
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Response
+from starlette.concurrency import run_in_threadpool
 
 from app.deps import QueryId, ReadAuth, StoreDep, WriteAuth
 from app.routers.runs import run_out
 from app.schemas import WRITE_ERRORS, AnswerIn, GoalExampleOut, QueryOut, QueueItem, SkipIn, errors
-from app.store import INT32_MAX, NotFound, QueryStatus
+from app.store import INT32_MAX, NotFound, QueryStatus, Store
 
 router = APIRouter(prefix="/api/queries", tags=["queries"], responses=errors(401))
 
@@ -15,7 +21,7 @@ RunFilter = Annotated[int | None, Query(ge=1, le=INT32_MAX, description="Only th
 
 
 @router.get("", response_model=list[QueryOut])
-def list_queries(
+async def list_queries(
     store: StoreDep,
     _auth: ReadAuth,
     run_id: RunFilter = None,
@@ -23,14 +29,21 @@ def list_queries(
     limit: Annotated[int, Query(ge=1, le=1000)] = 200,
 ) -> list[QueryOut]:
     """Pending queries come oldest first (the order to answer them); others newest first."""
-    rows = store.list_queries(run_id=run_id, status=status, limit=limit, oldest_first=status == QueryStatus.PENDING)
+    oldest_first = status == QueryStatus.PENDING
+    rows = await run_in_threadpool(
+        store.list_queries, run_id=run_id, status=status, limit=limit, oldest_first=oldest_first
+    )
     return [QueryOut.of(query) for query in rows]
 
 
 @router.get("/next", response_model=QueueItem, responses=errors(404))
-def next_query(store: StoreDep, _auth: ReadAuth, run_id: RunFilter = None) -> QueueItem:
+async def next_query(store: StoreDep, _auth: ReadAuth, run_id: RunFilter = None) -> QueueItem:
     """The oldest pending query (of one run, or of all), its run and the run's goal photos: one indexed lookup
     and two COUNTs, however many queries are pending."""
+    return await run_in_threadpool(_queue_item, store, run_id)
+
+
+def _queue_item(store: Store, run_id: int | None) -> QueueItem:
     if run_id is not None:
         store.get_run(run_id=run_id)
     query = store.next_pending_query(run_id=run_id)
@@ -62,8 +75,8 @@ def next_query(store: StoreDep, _auth: ReadAuth, run_id: RunFilter = None) -> Qu
 
 
 @router.get("/{query_id}", response_model=QueryOut, responses=errors(404))
-def get_query(query_id: QueryId, store: StoreDep, _auth: ReadAuth) -> QueryOut:
-    return QueryOut.of(store.get_query(query_id=query_id))
+async def get_query(query_id: QueryId, store: StoreDep, _auth: ReadAuth) -> QueryOut:
+    return QueryOut.of(await run_in_threadpool(store.get_query, query_id=query_id))
 
 
 @router.get(
@@ -81,17 +94,19 @@ def query_image(
 
 
 @router.post("/{query_id}/answer", response_model=QueryOut, responses=errors(404, 409, *WRITE_ERRORS))
-def answer_query(query_id: QueryId, body: AnswerIn, store: StoreDep, _auth: WriteAuth) -> QueryOut:
+async def answer_query(query_id: QueryId, body: AnswerIn, store: StoreDep, _auth: WriteAuth) -> QueryOut:
     """The same answer twice is fine; a different second answer is 409 and the first is kept."""
-    return QueryOut.of(store.answer_query(query_id=query_id, success=body.success, labeler=body.labeler))
+    answer = {"query_id": query_id, "success": body.success, "labeler": body.labeler}
+    return QueryOut.of(await run_in_threadpool(store.answer_query, **answer))
 
 
 @router.post("/{query_id}/skip", response_model=QueryOut, responses=errors(404, 409, *WRITE_ERRORS))
-def skip_query(query_id: QueryId, store: StoreDep, _auth: WriteAuth, body: SkipIn | None = None) -> QueryOut:
-    return QueryOut.of(store.skip_query(query_id=query_id, labeler=body.labeler if body else ""))
+async def skip_query(query_id: QueryId, store: StoreDep, _auth: WriteAuth, body: SkipIn | None = None) -> QueryOut:
+    labeler = body.labeler if body else ""
+    return QueryOut.of(await run_in_threadpool(store.skip_query, query_id=query_id, labeler=labeler))
 
 
 @router.post("/{query_id}/undo", response_model=QueryOut, responses=errors(404, 409, *WRITE_ERRORS))
-def undo_answer(query_id: QueryId, store: StoreDep, _auth: WriteAuth) -> QueryOut:
+async def undo_answer(query_id: QueryId, store: StoreDep, _auth: WriteAuth) -> QueryOut:
     """Back to pending, while the learner has not used the answer (409 once it has)."""
-    return QueryOut.of(store.undo_answer(query_id=query_id))
+    return QueryOut.of(await run_in_threadpool(store.undo_answer, query_id=query_id))
