@@ -1,6 +1,7 @@
 """The store both processes use: runs, claims, queries, answers, metrics, on a real SQLite file."""
 
 import multiprocessing as mp
+import sqlite3
 import time
 from pathlib import Path
 from typing import Any
@@ -324,6 +325,47 @@ def test_a_write_waits_for_another_process_write_lock_then_lands(store: Store, d
     assert store.get_run(run_id=run_id).step == 1  # the other process's write landed too
     with store.engine.connect() as connection:  # the wait polled with busy_timeout 0, then restored it
         assert connection.execute(text("PRAGMA busy_timeout")).scalar() == 30000
+
+
+def test_a_learners_writes_are_single_statements_that_leave_no_lock_behind(store: Store, database_url: str) -> None:
+    """Heartbeat, query, metrics, event and the answers read: each one statement in SQLite's own transaction (no
+    BEGIN from Python, so the write lock is never held while the learner's process waits between statements),
+    stored the moment it returns."""
+    run_id = make_run(store)
+    assert store.claim_next_run(worker="w") is not None
+    answered = post(store, run_id)
+    store.answer_query(query_id=answered, success=True, labeler="person")
+    statements: list[str] = []
+
+    def record(_connection, _cursor, statement, *_args) -> None:  # type: ignore[no-untyped-def]
+        statements.append(statement.split()[0].upper())
+
+    sa.event.listen(store.engine, "before_cursor_execute", record)
+    try:
+        assert store.heartbeat(run_id=run_id, worker="w", step=7, phase="training")
+        posted = post(store, run_id, env_step=7)
+        assert store.record_metrics(run_id=run_id, step=7, values={"a": 1.0, "b": float("nan"), "c": 2.0}) == 2
+        store.record_event(run_id=run_id, message="epoch 1")
+        assert [a.query_id for a in store.new_answers(run_id=run_id)] == [answered]
+    finally:
+        sa.event.remove(store.engine, "before_cursor_execute", record)
+    assert statements == ["UPDATE", "INSERT", "INSERT", "INSERT", "UPDATE"]
+    other = sqlite3.connect(database_url.removeprefix("sqlite:///"), timeout=0)  # no waiting: "locked" if held
+    other.execute("BEGIN IMMEDIATE")
+    other.rollback()
+    other.close()
+    fresh = Store(database_url)
+    try:
+        assert fresh.get_run(run_id=run_id).step == 7
+        assert fresh.get_query(query_id=posted).status == QueryStatus.PENDING
+        assert {m.name: m.value for m in fresh.metrics(run_id=run_id)} == {"a": 1.0, "c": 2.0}
+        assert "epoch 1" in [e.message for e in fresh.events(run_id=run_id)]
+        assert fresh.get_query(query_id=answered).used_at is not None
+        with pytest.raises(NotFound):
+            post(fresh, 10_000)
+        assert fresh.count_queries() == 2
+    finally:
+        fresh.dispose()
 
 
 def test_many_threads_answering_while_a_learner_beats_all_land_numbered_in_order(

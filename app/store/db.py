@@ -64,7 +64,10 @@ def _configure_sqlite(engine: Engine) -> None:
     def _on_begin(connection) -> None:  # type: ignore[no-untyped-def]
         # Writers take the lock up front (BEGIN IMMEDIATE) so that they wait for it; a deferred transaction
         # that reads first and writes later fails at once with "database is locked".
-        if connection.get_execution_options().get("sqlite_immediate"):
+        options = connection.get_execution_options()
+        if options.get("isolation_level") == "AUTOCOMMIT":
+            return  # Database.autocommitting: each statement is its own transaction, SQLite's implicit one
+        if options.get("sqlite_immediate"):
             _begin_immediate(connection.connection.driver_connection)
         else:
             connection.exec_driver_sql("BEGIN")
@@ -135,9 +138,13 @@ class Database:
 
     @contextmanager
     def autocommitting(self) -> Iterator[Session]:
-        """Each statement in its own transaction, committed by the database before it answers (PostgreSQL: one
-        round trip for a statement that must not hold its locks while this process waits for anything)."""
-        with self._autocommit() as session:
+        """Each statement in its own transaction, committed by the database before it answers: its locks are
+        held only while the database runs it, never while this process waits for anything. PostgreSQL: one round
+        trip instead of three. SQLite: the write lock is held inside one sqlite3 call instead of from BEGIN
+        IMMEDIATE through Python to COMMIT; a learner at nice 10 descheduled in that window held it for up to
+        165 ms while the server's answers waited (measured under bench/load.py). Writers of this process still
+        take their turn first; against other processes SQLite's busy handler waits."""
+        with self._write_turn, self._autocommit() as session:
             yield session
 
     def dispose(self) -> None:

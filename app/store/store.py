@@ -437,7 +437,7 @@ class Store(Database):
             values["step"] = step
         if status is not None:
             values["status"] = status
-        with self.writing() as session:  # one statement: learners beat often, and SQLite has one writer
+        with self.autocommitting() as session:  # one statement, see Database.autocommitting
             stop_requested = session.scalar(
                 update(Run)
                 .where(Run.id == run_id, Run.worker == worker, Run.status.in_(RunStatus.ACTIVE))
@@ -531,23 +531,18 @@ class Store(Database):
         info: dict[str, Any] | None = None,
         ground_truth_success: float | None = None,
     ) -> Query:
-        with self.writing() as session:
-            if session.get(Run, run_id) is None:
-                raise NotFound(f"run {run_id} not found")
-            query = Query(
-                run_id=run_id,
-                env_step=env_step,
-                model_png=model_png,
-                display_png=display_png,
-                score=float(score),
-                strategy=strategy,
-                info=info or {},
-                ground_truth_success=ground_truth_success,
-                status=QueryStatus.PENDING,
-            )
-            session.add(query)
-            session.flush()
-            return query
+        values = {
+            "run_id": run_id, "env_step": env_step, "model_png": model_png, "display_png": display_png,
+            "score": float(score), "strategy": strategy, "info": info or {},
+            "ground_truth_success": ground_truth_success, "status": QueryStatus.PENDING,
+        }  # fmt: skip
+        with self.autocommitting() as session:  # one statement, see Database.autocommitting
+            try:
+                return session.scalars(insert(Query).returning(Query), [values]).one()
+            except IntegrityError:
+                if session.get(Run, run_id) is None:  # the foreign key: the run was never there, or deleted
+                    raise NotFound(f"run {run_id} not found") from None
+                raise
 
     def get_query(self, *, query_id: int) -> Query:
         with self.reading() as session:
@@ -738,7 +733,7 @@ class Store(Database):
         """Answers to the run's queries with answer_seq > since_seq, oldest first. Marks them used in the same
         statement (UPDATE … RETURNING), so an answer the learner has read can no longer be undone, and an
         answer undone first is not returned."""
-        with self.writing() as session:
+        with self.autocommitting() as session:  # one statement, see Database.autocommitting
             rows = session.execute(
                 update(Query)
                 .where(
@@ -768,11 +763,13 @@ class Store(Database):
         has no NaN; returns how many were stored."""
         now = utcnow()
         finite = {name: float(value) for name, value in values.items() if math.isfinite(float(value))}
-        with self.writing() as session:
-            session.add_all(
-                Metric(run_id=run_id, step=step, name=name, value=value, created_at=now)
+        if finite:
+            rows = [
+                {"run_id": run_id, "step": step, "name": name, "value": value, "created_at": now}
                 for name, value in finite.items()
-            )
+            ]
+            with self.autocommitting() as session:  # one statement, see Database.autocommitting
+                session.execute(insert(Metric).values(rows))
         return len(finite)
 
     def metrics(self, *, run_id: int, since_step: int = -1, names: Iterable[str] | None = None) -> list[Metric]:
@@ -792,8 +789,8 @@ class Store(Database):
             )
 
     def record_event(self, *, run_id: int | None, message: str, level: str = "info") -> None:
-        with self.writing() as session:
-            session.add(Event(run_id=run_id, level=level, message=message))
+        with self.autocommitting() as session:  # one statement, see Database.autocommitting
+            session.execute(insert(Event).values(run_id=run_id, level=level, message=message))
 
     def events(self, *, run_id: int | None = None, since_id: int = 0, limit: int = 200) -> list[Event]:
         statement = select(Event).where(Event.id > since_id)
