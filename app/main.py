@@ -92,12 +92,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def _invalid(_request: Request, error: InvalidInput) -> JSONResponse:
         return JSONResponse(status_code=400, content={"detail": str(error)})
 
+    # Requests are matched against the routes in this order: the labelling API, the busiest, first.
+    app.include_router(queries.router)
     app.include_router(health.router)
     app.include_router(runs.router)
     app.include_router(exports.router)
     app.include_router(compare.router)
     app.include_router(goal_sets.router)
-    app.include_router(queries.router)
     app.include_router(metrics.router)
     app.include_router(events.router)
     app.include_router(envs.router)
