@@ -343,7 +343,9 @@ def test_a_learners_writes_are_single_statements_that_leave_no_lock_behind(store
     sa.event.listen(store.engine, "before_cursor_execute", record)
     try:
         assert store.heartbeat(run_id=run_id, worker="w", step=7, phase="training")
-        posted = post(store, run_id, env_step=7)
+        query = store.post_query(run_id=run_id, env_step=7, model_png=PNG, display_png=PNG + b"big", score=1.0)
+        posted = query.id
+        assert (query.model_png, query.display_png, query.status) == (PNG, PNG + b"big", QueryStatus.PENDING)
         assert store.record_metrics(run_id=run_id, step=7, values={"a": 1.0, "b": float("nan"), "c": 2.0}) == 2
         store.record_event(run_id=run_id, message="epoch 1")
         assert [a.query_id for a in store.new_answers(run_id=run_id)] == [answered]
@@ -358,6 +360,7 @@ def test_a_learners_writes_are_single_statements_that_leave_no_lock_behind(store
     try:
         assert fresh.get_run(run_id=run_id).step == 7
         assert fresh.get_query(query_id=posted).status == QueryStatus.PENDING
+        assert fresh.query_image(query_id=posted, resolution="display") == PNG + b"big"
         assert {m.name: m.value for m in fresh.metrics(run_id=run_id)} == {"a": 1.0, "c": 2.0}
         assert "epoch 1" in [e.message for e in fresh.events(run_id=run_id)]
         assert fresh.get_query(query_id=answered).used_at is not None

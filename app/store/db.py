@@ -51,7 +51,9 @@ def _begin_immediate(dbapi_connection: sqlite3.Connection) -> None:
 def _configure_sqlite(engine: Engine) -> None:
     @event.listens_for(engine, "connect")
     def _on_connect(dbapi_connection, _record) -> None:  # type: ignore[no-untyped-def]
-        # Let SQLAlchemy's "begin" event below issue BEGIN itself (pysqlite's own is unreliable).
+        # Let SQLAlchemy's "begin" event below issue BEGIN itself (pysqlite's own is unreliable). A connection
+        # checked in after an autocommitting session gets isolation_level "" back from SQLAlchemy; harmless, since
+        # the "begin" event starts every transaction before its first statement, so pysqlite never adds its own.
         dbapi_connection.isolation_level = None
         cursor = dbapi_connection.cursor()
         cursor.execute("PRAGMA journal_mode=WAL")

@@ -538,11 +538,14 @@ class Store(Database):
         }  # fmt: skip
         with self.autocommitting() as session:  # one statement, see Database.autocommitting
             try:
-                return session.scalars(insert(Query).returning(Query), [values]).one()
+                query = session.scalars(insert(Query).returning(Query), [values]).one()
             except IntegrityError:
                 if session.get(Run, run_id) is None:  # the foreign key: the run was never there, or deleted
                     raise NotFound(f"run {run_id} not found") from None
                 raise
+        for column in ("model_png", "display_png"):  # deferred columns, not in RETURNING: the caller's bytes
+            set_committed_value(query, column, values[column])
+        return query
 
     def get_query(self, *, query_id: int) -> Query:
         with self.reading() as session:
