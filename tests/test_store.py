@@ -371,6 +371,41 @@ def test_a_learners_writes_are_single_statements_that_leave_no_lock_behind(store
         fresh.dispose()
 
 
+def test_an_answer_holds_sqlites_write_lock_for_three_statements_only(store: Store, database_url: str) -> None:
+    """Under BEGIN IMMEDIATE an answer runs exactly: take a number, set the answer, log the event (no ORM read and
+    flush between them); an answer given again writes nothing and is explained by a read after the lock is gone."""
+    run_id = make_run(store)
+    query_id = post(store, run_id)
+    statements: list[str] = []
+
+    def record(_connection, _cursor, statement, *_args) -> None:  # type: ignore[no-untyped-def]
+        statements.append(statement.split()[0].upper())
+
+    sa.event.listen(store.engine, "before_cursor_execute", record)
+    try:
+        answered = store.answer_query(query_id=query_id, success=True, labeler="person")
+        first = list(statements)
+        statements.clear()
+        again = store.answer_query(query_id=query_id, success=True, labeler="someone else")
+    finally:
+        sa.event.remove(store.engine, "before_cursor_execute", record)
+    assert first == ["INSERT", "UPDATE", "INSERT"]
+    assert statements[0] == "INSERT" and "UPDATE" not in statements  # no number taken, nothing changed
+    assert (answered.status, answered.answer, answered.labeler, answered.answer_seq) == (
+        QueryStatus.ANSWERED, True, "person", 1,
+    )  # fmt: skip
+    assert (again.labeler, again.answer_seq) == ("person", 1)
+    other = sqlite3.connect(database_url.removeprefix("sqlite:///"), timeout=0)  # no waiting: "locked" if held
+    other.execute("BEGIN IMMEDIATE")
+    other.rollback()
+    other.close()
+    assert [e.message for e in store.events(run_id=run_id)].count(f"query {query_id} answered yes by person") == 1
+    with pytest.raises(Conflict):
+        store.answer_query(query_id=query_id, success=False)
+    with pytest.raises(NotFound):
+        store.answer_query(query_id=10_000, success=True)
+
+
 def test_many_threads_answering_while_a_learner_beats_all_land_numbered_in_order(
     store: Store, database_url: str
 ) -> None:
