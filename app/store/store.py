@@ -75,15 +75,8 @@ _NEXT_ANSWER_SEQ_SQL = """
 """
 _UNANSWERED = "EXISTS (SELECT 1 FROM queries WHERE id = :query_id AND status <> :answered)"
 _NEXT_ANSWER_SEQ_IF_UNANSWERED = _NEXT_ANSWER_SEQ_SQL.format(condition=_UNANSWERED, greatest="GREATEST")
-# (PostgreSQL, in the statement below)
+# (PostgreSQL, in _ANSWER_IN_ONE_STATEMENT below)
 _TAKE_ANSWER_SEQ_IF_UNANSWERED = text(_NEXT_ANSWER_SEQ_SQL.format(condition=_UNANSWERED, greatest="MAX"))  # SQLite
-_ANSWER_COUNTER_VALUE = select(AnswerCounter.value).where(AnswerCounter.id == 1).scalar_subquery()
-# An answer on PostgreSQL as one statement in its own transaction (autocommit): take the next number, set the
-# answer if the query is not answered yet, log the event. The counter's row lock is held from taking the number to the
-# commit inside the server, never while this process waits for a thread or the GIL (with a lock taken and the
-# answer written in separate round trips, 11% of the answers waited > 10 ms for it under bench/load.py and the
-# waits queued up into a 120-160 ms p99). A query answered meanwhile (the EXISTS sees the statement's snapshot)
-# costs a number: the learners' cursors only need numbers to rise in commit order, not to be contiguous.
 _QUERY_COLUMNS = [column for column in Query.__table__.columns if column.key not in ("model_png", "display_png")]
 _SET_ANSWER = (  # SQLite, under the write lock, once _TAKE_ANSWER_SEQ_IF_UNANSWERED took a number (bind names that
     # are not column names: update() reserves those)
@@ -95,6 +88,13 @@ _SET_ANSWER = (  # SQLite, under the write lock, once _TAKE_ANSWER_SEQ_IF_UNANSW
     )
     .returning(*_QUERY_COLUMNS)
 )  # fmt: skip
+_ANSWER_COUNTER_VALUE = select(AnswerCounter.value).where(AnswerCounter.id == 1).scalar_subquery()
+# An answer on PostgreSQL as one statement in its own transaction (autocommit): take the next number, set the
+# answer if the query is not answered yet, log the event. The counter's row lock is held from taking the number to the
+# commit inside the server, never while this process waits for a thread or the GIL (with a lock taken and the
+# answer written in separate round trips, 11% of the answers waited > 10 ms for it under bench/load.py and the
+# waits queued up into a 120-160 ms p99). A query answered meanwhile (the EXISTS sees the statement's snapshot)
+# costs a number: the learners' cursors only need numbers to rise in commit order, not to be contiguous.
 _ANSWER_IN_ONE_STATEMENT = (
     text(
         f"""
@@ -634,7 +634,7 @@ class Store(Database):
         for _attempt in range(5):
             try:
                 return self._answer_query_once(query_id=query_id, success=success, labeler=labeler)
-            except (IntegrityError, _LostRace):  # another answer got there first (PostgreSQL): look again
+            except (IntegrityError, _LostRace):  # another answer or an undo got there first: look again
                 continue
         raise Conflict("could not record the answer: too many concurrent answers, try again")
 
@@ -657,7 +657,7 @@ class Store(Database):
         if query.status == QueryStatus.ANSWERED:
             self._check_answer_again(query, success)
             return query
-        raise _LostRace  # PostgreSQL: changed since the statement's snapshot (an undo): look again
+        raise _LostRace  # undone since it was written or (PostgreSQL) since the statement's snapshot: look again
 
     def _answer_sqlite(self, values: dict[str, Any]) -> Query | None:
         """The answer in three Core statements under BEGIN IMMEDIATE: take the next number if the query is not
@@ -672,7 +672,9 @@ class Store(Database):
             row = connection.execute(
                 _SET_ANSWER, {**values, "new_answer": values["answer"], "new_labeler": values["labeler"], "seq": seq}
             ).one()
-            connection.execute(insert(Event), {"run_id": row.run_id, "message": values["message"]})
+            connection.execute(
+                insert(Event), {"run_id": row.run_id, "message": values["message"], "created_at": values["now"]}
+            )
         return Query(**row._mapping)
 
     @staticmethod
