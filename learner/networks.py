@@ -57,8 +57,12 @@ def resolve_precision(precision: str, device_type: str = "cpu") -> str:
 
 
 def _matmul_seconds(dtype: torch.dtype, repeats: int = 5) -> float:
-    """Best time of one (256, 1152) @ (1152, 256) matmul in `dtype` on the CPU."""
-    a, b = torch.randn(256, 1152).to(dtype), torch.randn(1152, 256).to(dtype)
+    """Best time of one (256, 1152) @ (1152, 256) matmul in `dtype` on the CPU. Its operands come from a generator
+    of its own: drawn from torch's global one, they shifted every draw after it, so a run's seed gave other initial
+    weights depending on whether this process had resolved "auto" before (functools.cache: once per process)."""
+    generator = torch.Generator().manual_seed(0)
+    a = torch.randn(256, 1152, generator=generator).to(dtype)
+    b = torch.randn(1152, 256, generator=generator).to(dtype)
     a @ b  # warm-up
     best = math.inf
     for _ in range(repeats):
