@@ -664,7 +664,7 @@ class Store(Database):
         answered yet, set the answer, log the event. None: nothing written (no such query, or answered already).
         With the ORM (read the row, compare-and-set, flush the event) the write lock was held for ~4 ms of Python
         per answer, and answers queued behind it: under bench/load.py the p50 halved and the p99 fell from
-        47-71 ms to 35-53 ms when the lock was held only for the statements (tens of microseconds each)."""
+        47-71 ms to 31-53 ms when the lock was held only for the statements (tens of microseconds each)."""
         with self.writing_statements() as connection:
             seq = connection.execute(_TAKE_ANSWER_SEQ_IF_UNANSWERED, values).scalar()
             if seq is None:
