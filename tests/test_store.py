@@ -327,6 +327,14 @@ def test_a_write_waits_for_another_process_write_lock_then_lands(store: Store, d
         assert connection.execute(text("PRAGMA busy_timeout")).scalar() == 30000
 
 
+def take_the_write_lock_at_once(database_url: str) -> None:
+    """Another connection takes SQLite's write lock without waiting: raises "database is locked" if one is held."""
+    other = sqlite3.connect(database_url.removeprefix("sqlite:///"), timeout=0)
+    other.execute("BEGIN IMMEDIATE")
+    other.rollback()
+    other.close()
+
+
 def test_a_learners_writes_are_single_statements_that_leave_no_lock_behind(store: Store, database_url: str) -> None:
     """Heartbeat, query, metrics, event and the answers read: each one statement in SQLite's own transaction (no
     BEGIN from Python, so the write lock is never held while the learner's process waits between statements),
@@ -352,10 +360,7 @@ def test_a_learners_writes_are_single_statements_that_leave_no_lock_behind(store
     finally:
         sa.event.remove(store.engine, "before_cursor_execute", record)
     assert statements == ["UPDATE", "INSERT", "INSERT", "INSERT", "UPDATE"]
-    other = sqlite3.connect(database_url.removeprefix("sqlite:///"), timeout=0)  # no waiting: "locked" if held
-    other.execute("BEGIN IMMEDIATE")
-    other.rollback()
-    other.close()
+    take_the_write_lock_at_once(database_url)
     fresh = Store(database_url)
     try:
         assert fresh.get_run(run_id=run_id).step == 7
@@ -395,10 +400,7 @@ def test_an_answer_holds_sqlites_write_lock_for_three_statements_only(store: Sto
         QueryStatus.ANSWERED, True, "person", 1,
     )  # fmt: skip
     assert (again.labeler, again.answer_seq) == ("person", 1)
-    other = sqlite3.connect(database_url.removeprefix("sqlite:///"), timeout=0)  # no waiting: "locked" if held
-    other.execute("BEGIN IMMEDIATE")
-    other.rollback()
-    other.close()
+    take_the_write_lock_at_once(database_url)
     assert [e.message for e in store.events(run_id=run_id)].count(f"query {query_id} answered yes by person") == 1
     with pytest.raises(Conflict):
         store.answer_query(query_id=query_id, success=False)
