@@ -1,12 +1,12 @@
 """The whole training loop against its update bound: is the loop as fast as its SAC updates allow?
 
-    MUJOCO_GL=egl python bench/loop_speed.py [--steps 3000] [--task pusher] [--threads N]
+    MUJOCO_GL=egl python bench/loop_speed.py [--steps 3000] [--task pusher] [--threads N] [--set FIELD=VALUE ...]
 
 Runs the real loop (`learner.train.Trainer`: env, replay, f_psi scoring of every observation, queries posted to a
 real SQLite store and answered from another thread, the classifier's epochs, evaluations, metrics, heartbeats)
-for `--steps` env steps after the 1,000-step random warm-up, on the default configuration. It times the SAC
-updates inside that same run (sampling, rewards f_psi(s') and the update itself), so both figures share the
-machine's state:
+for `--steps` env steps after the 1,000-step random warm-up, on the default configuration (or with `--set`'s
+fields changed, as in bench/learn.py). It times the SAC updates inside that same run (sampling, rewards f_psi(s')
+and the update itself), so both figures share the machine's state:
 
     E = env steps per second of the loop after the warm-up, everything included;
     U = updates per second of the SAC updates alone (the bound: one update per env step);
@@ -45,6 +45,7 @@ import torch  # noqa: E402
 from app.demo import add_simulated_goal_set  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
 from app.store import Store  # noqa: E402
+from bench.learn import parse_overrides  # noqa: E402
 from learner.config import TrainConfig  # noqa: E402
 from learner.networks import resolve_precision  # noqa: E402
 from learner.train import Trainer  # noqa: E402
@@ -104,15 +105,19 @@ def main() -> int:
     parser.add_argument("--query-every", type=int, default=1000, help="a query every this many env steps")
     parser.add_argument("--device", default="cpu", help="the learner's torch device (cpu, cuda)")
     parser.add_argument("--envs", type=int, default=1, help="training envs in lockstep (TrainConfig.num_envs)")
+    parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="other TrainConfig fields")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     config = TrainConfig(
         env_id=TASKS[args.task], total_steps=WARM_UP + args.steps, query_every=args.query_every,
         query_budget=1000, checkpoint_every=10**9, device=args.device, num_envs=args.envs,
+        **parse_overrides(args.set),
     )  # fmt: skip
+    overrides = " ".join(args.set)
     print(
-        f"torch {torch.__version__}, {torch.get_num_threads()} threads, {config.env_id}, default config, "
+        f"torch {torch.__version__}, {torch.get_num_threads()} threads, {config.env_id}, "
+        f"{'default config' + (f' but {overrides}' if overrides else '')}, "
         f"precision {config.precision} -> {resolve_precision(config.precision, torch.device(args.device).type)}; "
         f"{args.steps} env steps timed on {args.device}, {args.envs} env(s) in lockstep",
         flush=True,
