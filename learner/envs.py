@@ -14,13 +14,43 @@ import importlib
 import io
 import math
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from PIL import Image
 
-SIM_ENV_IDS = ("VisualPusher-v0", "VisualDoor-v0", "VisualPicker-v0")
+
+@dataclass(frozen=True)
+class TaskSettings:
+    """TrainConfig fields a simulated task was measured to learn with (every other field: its default)."""
+
+    fields: dict[str, int | float]
+    """Field name -> value, as a run's config takes them."""
+    measured: str
+    """What the settings were measured to do, in one sentence (README: Settings per task)."""
+
+
+# The New run form fills these in when a task is picked; GET /api/envs lists them. A run created through the API
+# gets what it is sent, so an oracle or script passes them itself.
+SIM_TASK_SETTINGS: dict[str, TaskSettings] = {
+    "VisualPusher-v0": TaskSettings(
+        {"query_every": 5000, "query_budget": 20, "classifier_steps": 100},
+        "VICE-RAQ reached 90% success within 16-30K env steps with 3-20 queries.",
+    ),
+    "VisualDoor-v0": TaskSettings(
+        {"query_every": 1000, "query_budget": 300, "classifier_steps": 10, "no_answer_share": 0.25},
+        "VICE-RAQ reached 100% success at 27K env steps on seed 0 (seeds 1 and 2 had not opened the door by 38K and "
+        "23K); asked every 10K steps, or with 5 or 100 classifier steps per epoch, no run opened it.",
+    ),
+    "VisualPicker-v0": TaskSettings(
+        {"query_every": 1000, "query_budget": 300, "classifier_steps": 100, "no_answer_share": 0.25},
+        "VICE-RAQ reached 80% success at 51K env steps on seed 0; without the no answers among the classifier's "
+        "negatives no evaluation succeeded in 75K.",
+    ),
+}
+SIM_ENV_IDS = tuple(SIM_TASK_SETTINGS)
 ALWAYS_ALLOWED_MODULES = ("sim",)  # the project's own simulated tasks
 
 

@@ -1,7 +1,45 @@
-// New run page: POST /api/runs, show 422 errors beside the fields they name.
+// New run page: POST /api/runs, show 422 errors beside the fields they name; fill in the settings a simulated
+// task was measured to learn with when it is picked.
 "use strict";
 
 const CONFIG_FIELDS = ["total_steps", "query_every", "query_budget"];
+const edited = new Set(); // inputs changed by hand: a task's settings never overwrite them
+
+/** The task's measured settings (served by the page, learner.envs.SIM_TASK_SETTINGS) into the form: its fields
+ * with an input of their own there, the rest as the More settings JSON unless that was edited by hand. */
+function fillTaskSettings(form, taskSettings) {
+  const envId = form.elements.env_id.value.trim();
+  const task = taskSettings[envId];
+  const note = document.getElementById("task-settings-note");
+  const extraInput = document.getElementById("extra_config");
+  if (!task) {
+    // another env: the config's defaults again (the page's values), except what was set by hand
+    for (const name of CONFIG_FIELDS) {
+      if (!edited.has(name)) form.elements[name].value = form.elements[name].defaultValue;
+    }
+    if (!edited.has("extra_config")) extraInput.value = "";
+    note.classList.add("hidden");
+    return;
+  }
+  const filled = [];
+  const kept = [];
+  const extra = {};
+  for (const [name, value] of Object.entries(task.fields)) {
+    const input = CONFIG_FIELDS.includes(name) ? form.elements[name] : extraInput;
+    if (edited.has(input.id)) {
+      kept.push(name);
+      continue;
+    }
+    if (input.id === "extra_config") extra[name] = value;
+    else input.value = String(value);
+    filled.push(`${name} ${value}`);
+  }
+  if (!edited.has("extra_config")) extraInput.value = Object.keys(extra).length ? JSON.stringify(extra) : "";
+  note.textContent =
+    `Filled in the settings ${envId} was measured to learn with: ${filled.join(", ")}. ${task.measured}` +
+    (kept.length ? ` Kept what you set for ${kept.join(", ")}.` : "");
+  note.classList.remove("hidden");
+}
 
 function clearErrors(form) {
   form.querySelectorAll(".field.invalid").forEach((field) => field.classList.remove("invalid"));
@@ -28,7 +66,15 @@ function showErrors(form, detail, fallback) {
     }
     unplaced.push(item.msg);
   }
-  box.innerHTML = "<b>The run was not started:</b><ul>" + unplaced.map((m) => `<li>${escapeHtml(m)}</li>`).join("") + "</ul>";
+  const title = document.createElement("b");
+  title.textContent = "The run was not started:";
+  const list = document.createElement("ul");
+  for (const message of unplaced) {
+    const item = document.createElement("li");
+    item.textContent = message;
+    list.appendChild(item);
+  }
+  box.replaceChildren(title, list);
   box.classList.remove("hidden");
 }
 
@@ -87,10 +133,16 @@ async function showPreview(form) {
 document.addEventListener("DOMContentLoaded", () => {
   const form = document.getElementById("new-run-form");
   const envInput = form.elements.env_id;
+  const taskSettings = JSON.parse(document.getElementById("task-settings").textContent);
+  for (const id of [...CONFIG_FIELDS, "extra_config"]) {
+    document.getElementById(id).addEventListener("input", () => edited.add(id));
+  }
   const schedulePreview = () => {
     clearTimeout(previewTimer);
     previewTimer = setTimeout(() => showPreview(form), 500);
   };
+  envInput.addEventListener("input", () => fillTaskSettings(form, taskSettings));
+  fillTaskSettings(form, taskSettings);
   envInput.addEventListener("input", schedulePreview);
   envInput.addEventListener("change", () => showPreview(form));
   showPreview(form);

@@ -122,6 +122,18 @@ def test_env_preview_checks_the_id_first(client: TestClient) -> None:
     assert "VisualDoor-v0" in client.get("/api/envs").json()["simulated"]
 
 
+def test_envs_list_the_settings_each_simulated_task_learns_with(client: TestClient, goal_set_with_photo: dict) -> None:
+    envs = client.get("/api/envs").json()
+    assert set(envs["task_settings"]) == set(envs["simulated"])
+    door = envs["task_settings"]["VisualDoor-v0"]
+    assert door["fields"]["classifier_steps"] == 10 and "27K" in door["measured"]
+    for env_id, task in envs["task_settings"].items():  # each is a config a run can be created with
+        body = {"env_id": env_id, "goal_set_id": goal_set_with_photo["id"], "config": task["fields"]}
+        created = client.post("/api/runs", json=body)
+        assert created.status_code == 201, created.text
+        assert {name: created.json()["config"][name] for name in task["fields"]} == task["fields"]
+
+
 def test_the_server_still_imports_no_torch() -> None:
     code = "import sys, app.main; print('torch' in sys.modules)"
     result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)

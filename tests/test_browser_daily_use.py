@@ -2,6 +2,7 @@
 delete from the run page; /docs with every request outside the server refused; the runs, run and queue pages on a
 390-px phone screen; no 404 (favicon) and no Content-Security-Policy violation anywhere."""
 
+import json
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -184,12 +185,26 @@ def test_own_env_preview_crop_note_framing_and_classifier_return(
     expect(page.locator("#env-preview-text")).to_contain_text("(3,)")
     expect(page.locator("#env-preview-observation")).to_have_js_property("naturalWidth", 48)
     _shot(page, "14-07-new-run-preview")
+    # a simulated task fills in the settings it was measured to learn with; what was set by hand stays
+    expect(page.locator("#query_every")).to_have_value("1000")
+    expect(page.locator("#query_budget")).to_have_value("300")
+    expect(page.locator("#task-settings-note")).to_contain_text("classifier_steps 10, no_answer_share 0.25")
+    assert json.loads(page.input_value("#extra_config")) == {"classifier_steps": 10, "no_answer_share": 0.25}
+    page.fill("#query_budget", "40")
+    page.fill("#env_id", "VisualPusher-v0")
+    expect(page.locator("#query_every")).to_have_value("5000")
+    expect(page.locator("#task-settings-note")).to_contain_text("Kept what you set for query_budget")
+    expect(page.locator("#query_budget")).to_have_value("40")
+    assert json.loads(page.input_value("#extra_config")) == {"classifier_steps": 100}
+    page.fill("#env_id", "VisualDoor-v0")
+    expect(page.locator("#query_every")).to_have_value("1000")
     page.click("details:not(#sweep) summary")
     page.fill("#extra_config", '{"env_id": "VisualPicker-v0"}')  # typed here, it wins (it was silently replaced)
     page.click("#start-run")
     page.wait_for_url(re.compile(r"/runs/\d+$"))
     run_id = int(page.url.rsplit("/", 1)[1])
-    assert store.get_run(run_id=run_id).env_id == "VisualPicker-v0"
+    run = store.get_run(run_id=run_id)
+    assert (run.env_id, run.config["query_every"], run.config["query_budget"]) == ("VisualPicker-v0", 1000, 40)
 
     # an env without a reward: the classifier's return is drawn instead of a flat zero line; ticks never repeat
     store.claim_next_run(worker="learner-a")

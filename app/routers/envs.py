@@ -12,16 +12,23 @@ from pydantic import BaseModel
 
 from app.deps import ReadAuth, SettingsDep
 from app.schemas import errors
-from learner.envs import SIM_ENV_IDS, env_id_problem, first_frames, known_env_ids
+from learner.envs import SIM_ENV_IDS, SIM_TASK_SETTINGS, env_id_problem, first_frames, known_env_ids
 
 router = APIRouter(prefix="/api/envs", tags=["envs"], responses=errors(401))
 _preview_lock = threading.Lock()  # one env made at a time: rendering contexts are not free
+
+
+class TaskSettingsOut(BaseModel):
+    fields: dict[str, int | float]
+    measured: str
 
 
 class EnvsOut(BaseModel):
     simulated: list[str]
     registered: list[str]
     allowed_modules: list[str]
+    task_settings: dict[str, TaskSettingsOut]
+    """Per simulated task: the config fields it was measured to learn with (the New run form fills them in)."""
 
 
 class EnvPreviewOut(BaseModel):
@@ -33,8 +40,19 @@ class EnvPreviewOut(BaseModel):
 
 @router.get("", response_model=EnvsOut)
 def list_envs(settings: SettingsDep, _auth: ReadAuth) -> EnvsOut:
-    """The simulated tasks, every registered Gymnasium id, and the modules runs may name as `module:EnvId`."""
-    return EnvsOut(simulated=list(SIM_ENV_IDS), registered=known_env_ids(), allowed_modules=list(settings.env_modules))
+    """The simulated tasks with the settings each was measured to learn with, every registered Gymnasium id, and
+    the modules runs may name as `module:EnvId`."""
+    return EnvsOut(
+        simulated=list(SIM_ENV_IDS), registered=known_env_ids(), allowed_modules=list(settings.env_modules),
+        task_settings=task_settings_out(),
+    )  # fmt: skip
+
+
+def task_settings_out() -> dict[str, TaskSettingsOut]:
+    """SIM_TASK_SETTINGS as the API and the New run page serve it."""
+    return {
+        env_id: TaskSettingsOut.model_validate(task, from_attributes=True) for env_id, task in SIM_TASK_SETTINGS.items()
+    }
 
 
 @lru_cache(maxsize=32)

@@ -23,6 +23,7 @@ from app.deps import (
     token_fingerprint,
 )
 from app.routers.compare import COMPARE_METRICS
+from app.routers.envs import task_settings_out
 from app.routers.runs import list_run_outs, run_detail, run_out
 from app.schemas import GoalExampleOut, GoalSetOut
 from app.store import INT32_MAX, NotFound, QueryStatus
@@ -103,6 +104,7 @@ def new_run_page(request: Request, settings: SettingsDep, store: StoreDep, goal_
         goal_sets=goal_sets,
         selected_goal_set=goal_set,
         defaults=defaults,
+        task_settings={env_id: task.model_dump() for env_id, task in task_settings_out().items()},
     )
 
 
