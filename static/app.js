@@ -1,14 +1,41 @@
-// Shared helpers for every page: JSON API calls with readable errors, formatting, toasts.
-"use strict";
+// Shared helpers for every page (an ES module; page scripts import what they use): JSON API calls with readable
+// errors, formatting, toasts, the status pill, polling.
 
-class ApiError extends Error {
+/** Values the server's Python defines, rendered into every page by base.html (not retyped here). */
+let serverConstants = null;
+function constants() {
+  if (serverConstants === null) {
+    const element = document.getElementById("page-constants");
+    serverConstants = element ? JSON.parse(element.textContent) : {};
+  }
+  return serverConstants;
+}
+
+/** Whether a run is being worked on by a learner (app.store.RunStatus.ACTIVE). */
+export function isActive(run) {
+  return (constants().active_statuses || []).includes(run.status);
+}
+
+/** An element: el("a", {href: "/"}, "text", child); "class" sets the class name; null attributes are left out. */
+export function el(tag, attributes = {}, ...children) {
+  const element = document.createElement(tag);
+  for (const [name, value] of Object.entries(attributes)) {
+    if (value === null || value === undefined || value === false) continue;
+    if (name === "class") element.className = value;
+    else element.setAttribute(name, value === true ? "" : String(value));
+  }
+  element.append(...children.filter((child) => child !== null && child !== undefined && child !== ""));
+  return element;
+}
+
+export class ApiError extends Error {
   constructor(status, message) {
     super(message);
     this.status = status;
   }
 }
 
-function describeDetail(detail) {
+export function describeDetail(detail) {
   if (detail == null) return "";
   if (typeof detail === "string") return detail;
   if (Array.isArray(detail)) {
@@ -17,7 +44,7 @@ function describeDetail(detail) {
   return JSON.stringify(detail);
 }
 
-async function api(method, url, body) {
+export async function api(method, url, body) {
   const options = { method, credentials: "same-origin", headers: { Accept: "application/json" } };
   if (body instanceof FormData) {
     options.body = body;
@@ -49,21 +76,21 @@ async function api(method, url, body) {
   return data;
 }
 
-function fmtNumber(value, digits = 2) {
+export function fmtNumber(value, digits = 2) {
   if (value === null || value === undefined || Number.isNaN(value)) return "–";
   const abs = Math.abs(value);
   if (abs !== 0 && (abs >= 1e5 || abs < 1e-3)) return value.toExponential(1);
   return Number(value.toFixed(digits)).toLocaleString();
 }
 
-function fmtSteps(value) {
+export function fmtSteps(value) {
   if (value === null || value === undefined) return "–";
   if (value >= 1e6) return Number((value / 1e6).toFixed(value >= 1e7 ? 0 : 1)) + "M";
   if (value >= 1e3) return Number((value / 1e3).toFixed(value >= 1e4 ? 0 : 1)) + "k";
   return String(value);
 }
 
-function fmtDuration(seconds) {
+export function fmtDuration(seconds) {
   if (seconds === null || seconds === undefined || !Number.isFinite(seconds)) return "–";
   seconds = Math.max(0, Math.round(seconds));
   if (seconds < 60) return seconds + " s";
@@ -73,28 +100,24 @@ function fmtDuration(seconds) {
   return Math.floor(hours / 24) + " d " + (hours % 24) + " h";
 }
 
-function fmtAge(seconds) {
+export function fmtAge(seconds) {
   if (seconds === null || seconds === undefined) return "never";
   return fmtDuration(seconds) + " ago";
 }
 
-function fmtPercent(value) {
+export function fmtPercent(value) {
   if (value === null || value === undefined) return "–";
   return Math.round(value * 100) + "%";
 }
 
-function fmtTime(iso) {
+export function fmtTime(iso) {
   if (!iso) return "";
   const date = new Date(iso);
   return date.toLocaleTimeString([], { hour: "2-digit", minute: "2-digit", second: "2-digit" });
 }
 
-function escapeHtml(text) {
-  return String(text ?? "").replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
-}
-
 let toastTimer = null;
-function toast(message, kind = "info", ms = 3500) {
+export function toast(message, kind = "info", ms = 3500) {
   let element = document.getElementById("toast");
   if (!element) {
     element = document.createElement("div");
@@ -109,20 +132,21 @@ function toast(message, kind = "info", ms = 3500) {
   toastTimer = setTimeout(() => element.classList.add("hidden"), ms);
 }
 
-function statusPill(run) {
+/** The run's status as a pill: <span class="status STATUS [stale]" title="REASON">LABEL</span>. */
+export function statusPill(run) {
   let cls = run.status;
   let label = run.status;
-  const active = run.status === "starting" || run.status === "training";
+  const active = isActive(run);
   const staleAfter = Number(document.body.dataset.staleAfter || 60);
   if (active && run.heartbeat_age_seconds !== null && run.heartbeat_age_seconds > staleAfter) {
     cls += " stale";
     label += " (no heartbeat)";
   }
   if (run.stop_requested && active) label += " · stopping";
-  return `<span class="status ${cls}" title="${escapeHtml(run.status_reason || "")}">${escapeHtml(label)}</span>`;
+  return el("span", { class: "status " + cls, title: run.status_reason || "" }, label);
 }
 
-function setPendingBadge(count) {
+export function setPendingBadge(count) {
   notifyQuestions(count);
   const badge = document.getElementById("nav-pending");
   if (!badge) return;
@@ -151,7 +175,7 @@ function notifyQuestions(count) {
 }
 
 /** The "Notify me" button: ask for permission, then say whether notifications are on. */
-function setUpNotifyButton(button) {
+export function setUpNotifyButton(button) {
   if (!button) return;
   const show = () => {
     if (!("Notification" in window)) {
@@ -173,7 +197,7 @@ function setUpNotifyButton(button) {
 }
 
 /** Call `fn` now and then every `ms` while the tab is visible; returns a function that stops it. */
-function poll(fn, ms) {
+export function poll(fn, ms) {
   let stopped = false;
   let timer = null;
   let ticks = 0;

@@ -1,6 +1,8 @@
-// Small SVG line charts: no dependencies. new LineChart(element, {title, series: [{name, label, color}], yMin, yMax}).
-"use strict";
+// Small SVG line charts (an ES module): new LineChart(element, {title, series: [{name, label, color}], yMin, yMax}).
+import { el, fmtNumber, fmtPercent } from "/static/app.js";
 
+/** The colours of a chart's lines, in order (the run page's series, the compare page's groups). */
+export const COLORS = ["#2f6fdf", "#e07b00", "#1f9d55", "#8e44ad", "#d64545", "#0f9bb4"];
 const SVG_NS = "http://www.w3.org/2000/svg";
 const CHART_W = 520;
 const CHART_H = 220;
@@ -44,20 +46,14 @@ function percentLabel(value, extra = 0) {
   return Number((value * 100).toFixed(extra)) + "%";
 }
 
-class LineChart {
+export class LineChart {
   constructor(element, options) {
     this.element = element;
     this.options = options;
     this.data = {};
     element.classList.add("chart");
-    element.innerHTML = "";
-    const head = document.createElement("div");
-    head.className = "chart-head";
-    head.innerHTML = `<div class="chart-title">${escapeHtml(options.title)}</div>`;
-    this.legend = document.createElement("div");
-    this.legend.className = "chart-legend";
-    head.appendChild(this.legend);
-    element.appendChild(head);
+    this.legend = el("div", { class: "chart-legend" });
+    element.replaceChildren(el("div", { class: "chart-head" }, el("div", { class: "chart-title" }, options.title), this.legend));
     this.svg = document.createElementNS(SVG_NS, "svg");
     this.svg.setAttribute("viewBox", `0 0 ${CHART_W} ${CHART_H}`);
     this.svg.setAttribute("role", "img");
@@ -87,13 +83,15 @@ class LineChart {
     while (svg.firstChild) svg.removeChild(svg.firstChild);
     const series = this.options.series.map((spec) => ({ ...spec, points: this.data[spec.name] || [] }));
     const all = series.flatMap((s) => s.points);
-    this.legend.innerHTML = series
-      .map((s) => {
+    this.legend.replaceChildren(
+      ...series.map((s) => {
         const last = s.points.length ? s.points[s.points.length - 1][1] : null;
         const shown = this.options.percent && last !== null ? fmtPercent(last) : fmtNumber(last, 3);
-        return `<span style="--swatch:${s.color}" data-series="${escapeHtml(s.name)}">${escapeHtml(s.label)}<b>${shown}</b></span>`;
+        const item = el("span", { "data-series": s.name }, s.label, el("b", {}, shown));
+        item.style.setProperty("--swatch", s.color);
+        return item;
       })
-      .join("");
+    );
     if (!all.length) {
       this.text(CHART_W / 2, CHART_H / 2, "no data yet", "middle", "no-data");
       return;

@@ -1,7 +1,7 @@
 // Compare page: GET /api/compare?runs=&metric= and one chart, a mean line and a min-max band per group.
-"use strict";
+import { api, fmtNumber, toast } from "/static/app.js";
+import { COLORS, LineChart } from "/static/charts.js";
 
-const GROUP_COLORS = ["#2f6fdf", "#e07b00", "#1f9d55", "#8e44ad", "#d64545", "#0f9bb4"];
 const state = { runs: [], metric: "", metrics: {}, chart: null };
 
 function groupRow(group, index) {
@@ -10,7 +10,7 @@ function groupRow(group, index) {
   const label = document.createElement("td");
   const swatch = document.createElement("span");
   swatch.className = "swatch";
-  swatch.style.background = GROUP_COLORS[index % GROUP_COLORS.length];
+  swatch.style.background = COLORS[index % COLORS.length];
   label.append(swatch, document.createTextNode(" " + group.label));
   const runs = document.createElement("td");
   group.run_ids.forEach((id, i) => {
@@ -42,7 +42,7 @@ async function load() {
     yMin: percent ? 0 : undefined,
     yMax: percent ? 1 : undefined,
     series: data.groups.map((group, i) => ({
-      name: group.label, label: group.label, color: GROUP_COLORS[i % GROUP_COLORS.length], band: true,
+      name: group.label, label: group.label, color: COLORS[i % COLORS.length], band: true,
     })),
   });
   state.chart.add(Object.fromEntries(data.groups.map((group) => [group.label, group.points])));

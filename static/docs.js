@@ -1,5 +1,5 @@
-// /docs: start Swagger UI (served by the app, no CDN) on the app's OpenAPI spec.
-"use strict";
+// /docs: start Swagger UI (served by the app, no CDN) on the app's OpenAPI spec. An ES module like the others; the
+// bundle before it is a classic deferred script, which runs first (deferred scripts and modules run in page order).
 
 document.addEventListener("DOMContentLoaded", () => {
   window.ui = window.SwaggerUIBundle({

@@ -1,5 +1,5 @@
 // Goal set pages: create a set, upload photos (drag and drop or picker), delete photos and sets.
-"use strict";
+import { api, toast } from "/static/app.js";
 
 function statusBox(kind, message) {
   const box = document.getElementById("upload-status");

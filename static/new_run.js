@@ -1,6 +1,6 @@
 // New run page: POST /api/runs, show 422 errors beside the fields they name; fill in the settings a simulated
 // task was measured to learn with when it is picked.
-"use strict";
+import { api, describeDetail } from "/static/app.js";
 
 const CONFIG_FIELDS = ["total_steps", "query_every", "query_budget"];
 const edited = new Set(); // inputs changed by hand: a task's settings never overwrite them

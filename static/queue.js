@@ -1,5 +1,5 @@
 // Answer queue: one query at a time; Y / N / S / U; the next one arrives by polling /api/queries/next.
-"use strict";
+import { api, el, fmtNumber, fmtPercent, poll, setPendingBadge, setUpNotifyButton } from "/static/app.js";
 
 const queue = {
   runId: null,
@@ -32,14 +32,14 @@ function renderGoals(item) {
     panel.classList.add("hidden");
     return;
   }
-  document.getElementById("goal-strip").innerHTML = item.goal_examples
-    .map(
-      (e) => `<figure><img class="thumb display" src="${e.display_url}" alt="${escapeHtml(e.filename)}">
-        <figcaption>${escapeHtml(e.filename)}</figcaption></figure>
-        <figure><img class="thumb pixelated model" src="${e.model_url}" alt="model view of ${escapeHtml(e.filename)}">
-        <figcaption>model view</figcaption></figure>`
-    )
-    .join("");
+  document.getElementById("goal-strip").replaceChildren(
+    ...item.goal_examples.flatMap((e) => [
+      el("figure", {}, el("img", { class: "thumb display", src: e.display_url, alt: e.filename }),
+        el("figcaption", {}, e.filename)),
+      el("figure", {}, el("img", { class: "thumb pixelated model", src: e.model_url, alt: `model view of ${e.filename}` }),
+        el("figcaption", {}, "model view")),
+    ])
+  );
   panel.classList.remove("hidden");
 }
 
@@ -71,12 +71,15 @@ function render(item) {
   const run = item.run;
   const facts = [
     ["Query", `#${query.id}`],
-    ["Run", run ? `<a href="/runs/${run.id}">#${run.id}</a> ${escapeHtml(run.env_id)}` : `#${query.run_id}`],
+    ["Run", run ? [el("a", { href: `/runs/${run.id}` }, `#${run.id}`), " " + run.env_id] : [`#${query.run_id}`]],
     ["Env step", query.env_step.toLocaleString()],
-    ["Classifier score", `f<sub>ψ</sub> = ${fmtNumber(query.score, 3)} <span class="muted">(p = ${fmtPercent(query.probability)})</span>`],
-    ["Why asked", escapeHtml(query.strategy === "argmax" ? "highest score since the last query" : query.strategy)],
+    ["Classifier score", ["f", el("sub", {}, "ψ"), ` = ${fmtNumber(query.score, 3)} `,
+      el("span", { class: "muted" }, `(p = ${fmtPercent(query.probability)})`)]],
+    ["Why asked", query.strategy === "argmax" ? "highest score since the last query" : query.strategy],
   ];
-  document.getElementById("query-facts").innerHTML = facts.map(([k, v]) => `<dt>${k}</dt><dd>${v}</dd>`).join("");
+  document.getElementById("query-facts").replaceChildren(
+    ...facts.flatMap(([term, value]) => [el("dt", {}, term), el("dd", {}, ...[value].flat())])
+  );
 }
 
 async function refresh() {

@@ -1,7 +1,8 @@
 // Run page: status and stats (every 2 s), curves from /api/runs/{id}/metrics?since_step=, rollout, queries, events.
-"use strict";
-
-const COLORS = ["#2f6fdf", "#e07b00", "#1f9d55", "#8e44ad", "#d64545", "#0f9bb4"];
+import {
+  api, el, fmtAge, fmtDuration, fmtNumber, fmtPercent, fmtSteps, fmtTime, isActive, poll, statusPill, toast,
+} from "/static/app.js";
+import { COLORS, LineChart } from "/static/charts.js";
 
 const CHARTS = [
   { id: "chart-success", title: "Evaluation success rate", percent: true, yMin: 0, yMax: 1,
@@ -27,7 +28,7 @@ const page = { run: null, charts: [], lastStep: -1, rolloutId: null, lastEventId
 
 function renderRun(run) {
   page.run = run;
-  document.getElementById("run-status").innerHTML = statusPill(run);
+  document.getElementById("run-status").replaceChildren(statusPill(run));
   const reason = document.getElementById("run-reason");
   if (run.status === "failed" && run.status_reason) {
     reason.className = "reason";
@@ -42,13 +43,20 @@ function renderRun(run) {
     reason.textContent = "";
   }
   document.getElementById("stat-step").textContent = `${fmtSteps(run.step)} / ${fmtSteps(run.total_steps)}`;
-  document.getElementById("stat-progress").innerHTML = run.total_steps
-    ? `<div class="progress" style="margin-top:0.35rem"><div style="width:${Math.min(100, (100 * run.step) / run.total_steps).toFixed(1)}%"></div></div>`
-    : "";
+  const progress = document.getElementById("stat-progress");
+  if (run.total_steps) {
+    const bar = el("div");
+    bar.style.width = `${Math.min(100, (100 * run.step) / run.total_steps).toFixed(1)}%`;
+    const track = el("div", { class: "progress" }, bar);
+    track.style.marginTop = "0.35rem";
+    progress.replaceChildren(track);
+  } else {
+    progress.replaceChildren();
+  }
   document.getElementById("stat-success").textContent = fmtPercent(run.success_rate);
   document.getElementById("stat-heartbeat").textContent = run.heartbeat_at ? fmtAge(run.heartbeat_age_seconds) : "–";
   document.getElementById("stat-worker").textContent = run.worker ? run.worker : "no learner yet";
-  const active = run.status === "training" || run.status === "starting";
+  const active = isActive(run);
   document.getElementById("stat-speed").textContent = active ? fmtNumber(run.steps_per_second, 1) : "–";
   const warmUp = active && run.phase === "warm-up";
   document.getElementById("stat-eta").textContent = run.status === "finished" ? "done"
@@ -72,8 +80,10 @@ function renderRun(run) {
                        "queries/yes": [[run.step, q.yes]] });
   }
   document.getElementById("stat-queries").textContent = `${q.answered} / ${q.asked}`;
-  document.getElementById("stat-queries-sub").innerHTML =
-    `answered · ${q.yes} yes` + (q.pending ? ` · <a href="/queue?run=${run.id}"><b>${q.pending} waiting</b></a>` : "");
+  document.getElementById("stat-queries-sub").replaceChildren(
+    `answered · ${q.yes} yes`,
+    ...(q.pending ? [" · ", el("a", { href: `/queue?run=${run.id}` }, el("b", {}, `${q.pending} waiting`))] : [])
+  );
   const canStop = run.status === "queued" || (active && !run.stop_requested);
   const canResume = run.status === "stopped" || run.status === "failed";
   document.getElementById("stop-run").classList.toggle("hidden", !canStop);
@@ -126,23 +136,26 @@ async function refreshQueries() {
   const queries = await api("GET", `/api/queries?run_id=${page.run.id}&limit=60`);
   const done = queries.filter((q) => q.status !== "pending");
   document.getElementById("answered-empty").classList.toggle("hidden", done.length > 0);
-  document.getElementById("answered").innerHTML = done
-    .map((q) => {
+  document.getElementById("answered").replaceChildren(
+    ...done.map((q) => {
       const tag = q.status === "skipped" ? "skipped" : q.answer ? "yes" : "no";
       const label = tag === "skipped" ? "skip" : tag;
-      return `<figure data-query-id="${q.id}" title="query #${q.id} · step ${q.env_step} · fψ ${fmtNumber(q.score, 2)}${q.labeler ? " · " + escapeHtml(q.labeler) : ""}">
-        <img class="thumb pixelated" src="${q.model_image_url}" alt="query ${q.id}" loading="lazy">
-        <span class="answer-tag ${tag}">${label}</span>
-        <figcaption>step ${fmtSteps(q.env_step)} · fψ ${fmtNumber(q.score, 1)}</figcaption></figure>`;
+      const title = `query #${q.id} · step ${q.env_step} · fψ ${fmtNumber(q.score, 2)}${q.labeler ? " · " + q.labeler : ""}`;
+      return el(
+        "figure",
+        { "data-query-id": q.id, title },
+        el("img", { class: "thumb pixelated", loading: "lazy", src: q.model_image_url, alt: `query ${q.id}` }),
+        el("span", { class: `answer-tag ${tag}` }, label),
+        el("figcaption", {}, `step ${fmtSteps(q.env_step)} · fψ ${fmtNumber(q.score, 1)}`)
+      );
     })
-    .join("");
+  );
 }
 
 async function refreshEvents() {
   const events = await api("GET", `/api/runs/${page.run.id}/events?limit=100`);
-  document.getElementById("events").innerHTML = events
-    .map((e) => `<li class="${escapeHtml(e.level)}"><time>${fmtTime(e.created_at)}</time><span>${escapeHtml(e.message)}</span></li>`)
-    .join("") || '<li class="muted">No events.</li>';
+  const items = events.map((e) => el("li", { class: e.level }, el("time", {}, fmtTime(e.created_at)), el("span", {}, e.message)));
+  document.getElementById("events").replaceChildren(...(items.length ? items : [el("li", { class: "muted" }, "No events.")]));
 }
 
 async function runAction(action) {

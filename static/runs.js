@@ -1,46 +1,67 @@
 // Runs page: the table, refreshed every 3 s from /api/runs.
-"use strict";
+import { api, el, fmtAge, fmtDuration, fmtPercent, fmtSteps, isActive, poll, setPendingBadge, statusPill } from "/static/app.js";
+
+const selected = new Set();
 
 function runRow(run) {
   const progress = run.total_steps ? Math.min(1, run.step / run.total_steps) : 0;
-  let reason = run.status === "failed" && run.status_reason
-    ? `<div class="reason">${escapeHtml(run.status_reason)}</div>` : "";
+  const active = isActive(run);
+  const status = el("td", {}, statusPill(run));
   if (run.status === "queued" && run.waiting_reason) {
-    reason = `<div class="small muted waiting-reason">${escapeHtml(run.waiting_reason)}</div>`;
+    status.append(el("div", { class: "small muted waiting-reason" }, run.waiting_reason));
+  } else if (run.status === "failed" && run.status_reason) {
+    status.append(el("div", { class: "reason" }, run.status_reason));
   }
-  const priority = run.priority ? ` <span class="small muted" title="priority">p${run.priority}</span>` : "";
-  const pending = run.queries.pending
-    ? ` · <a href="/queue?run=${run.id}"><b>${run.queries.pending} waiting</b></a>` : "";
-  const active = run.status === "training" || run.status === "starting";
+  if (active && run.phase) status.append(el("div", { class: "small muted run-phase" }, run.phase));
   const eta = run.eta_seconds !== null && active ? ` · ETA ${fmtDuration(run.eta_seconds)}` : "";
-  if (active && run.phase) reason += `<div class="small muted run-phase">${escapeHtml(run.phase)}</div>`;
-  const checked = selected.has(run.id) ? " checked" : "";
-  return `<tr data-run-id="${run.id}">
-    <td class="check"><input type="checkbox" class="compare-check" value="${run.id}" aria-label="compare run ${run.id}"${checked}></td>
-    <td><a href="/runs/${run.id}"><b>#${run.id}</b></a> ${escapeHtml(run.name)}${priority}</td>
-    <td class="wide-only">${escapeHtml(run.env_id)}</td>
-    <td class="wide-only"><code>${escapeHtml(run.algorithm)}</code></td>
-    <td>${statusPill(run)}${reason}</td>
-    <td class="progress-cell" style="min-width:170px">
-      <div class="small">${fmtSteps(run.step)} / ${fmtSteps(run.total_steps)}<span class="muted">${eta}</span></div>
-      <div class="progress"><div style="width:${(progress * 100).toFixed(1)}%"></div></div>
-    </td>
-    <td class="num">${fmtPercent(run.success_rate)}</td>
-    <td class="num">${run.queries.answered}/${run.queries.asked}${pending}</td>
-    <td class="num wide-only">${run.heartbeat_at ? fmtAge(run.heartbeat_age_seconds) : "–"}</td>
-  </tr>`;
+  const bar = el("div");
+  bar.style.width = `${(progress * 100).toFixed(1)}%`;
+  const progressCell = el(
+    "td",
+    { class: "progress-cell" },
+    el("div", { class: "small" }, `${fmtSteps(run.step)} / ${fmtSteps(run.total_steps)}`, el("span", { class: "muted" }, eta)),
+    el("div", { class: "progress" }, bar)
+  );
+  progressCell.style.minWidth = "170px";
+  const queries = el("td", { class: "num" }, `${run.queries.answered}/${run.queries.asked}`);
+  if (run.queries.pending) {
+    queries.append(" · ", el("a", { href: `/queue?run=${run.id}` }, el("b", {}, `${run.queries.pending} waiting`)));
+  }
+  const name = el("td", {}, el("a", { href: `/runs/${run.id}` }, el("b", {}, `#${run.id}`)), " " + run.name);
+  if (run.priority) name.append(" ", el("span", { class: "small muted", title: "priority" }, `p${run.priority}`));
+  const check = el("input", { type: "checkbox", class: "compare-check", value: run.id, "aria-label": `compare run ${run.id}` });
+  check.defaultChecked = selected.has(run.id);
+  return el(
+    "tr",
+    { "data-run-id": run.id },
+    el("td", { class: "check" }, check),
+    name,
+    el("td", { class: "wide-only" }, run.env_id),
+    el("td", { class: "wide-only" }, el("code", {}, run.algorithm)),
+    status,
+    progressCell,
+    el("td", { class: "num" }, fmtPercent(run.success_rate)),
+    queries,
+    el("td", { class: "num wide-only" }, run.heartbeat_at ? fmtAge(run.heartbeat_age_seconds) : "–")
+  );
 }
-
-const selected = new Set();
 
 function renderRuns(runs) {
   const body = document.getElementById("runs-body");
   if (!runs.length) {
-    body.innerHTML = `<tr><td colspan="9" class="empty">No runs yet. Create a <a href="/goal-sets">goal set</a>
-      with a few photos of success, then <a href="/runs/new">start a run</a>.</td></tr>`;
+    const empty = el(
+      "td",
+      { colspan: 9, class: "empty" },
+      "No runs yet. Create a ",
+      el("a", { href: "/goal-sets" }, "goal set"),
+      " with a few photos of success, then ",
+      el("a", { href: "/runs/new" }, "start a run"),
+      "."
+    );
+    body.replaceChildren(el("tr", {}, empty));
     return;
   }
-  body.innerHTML = runs.map(runRow).join("");
+  body.replaceChildren(...runs.map(runRow));
   setPendingBadge(runs.reduce((total, run) => total + run.queries.pending, 0));
 }
 

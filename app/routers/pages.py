@@ -26,7 +26,7 @@ from app.routers.compare import COMPARE_METRICS
 from app.routers.envs import task_settings_out
 from app.routers.runs import list_run_outs, run_detail, run_out
 from app.schemas import GoalExampleOut, GoalSetOut
-from app.store import INT32_MAX, NotFound, QueryStatus
+from app.store import INT32_MAX, NotFound, QueryStatus, RunStatus
 from learner.algorithms import ALGORITHM_SPECS
 from learner.config import TrainConfig
 from learner.envs import SIM_ENV_IDS, known_env_ids
@@ -72,6 +72,8 @@ def _page(request: Request, template: str, settings: Any, store: Any, status_cod
         "pending_total": store.count_queries(status=QueryStatus.PENDING) if authorised else 0,
         "path": request.url.path,
         "stale_after_seconds": settings.stale_heartbeat_seconds,
+        # values the page scripts need from Python (static/app.js reads them), so they are not retyped there
+        "page_constants": {"active_statuses": list(RunStatus.ACTIVE)},
     }
     return templates.TemplateResponse(request, template, {**base, **context}, status_code=status_code)
 
