@@ -53,7 +53,8 @@ export class LineChart {
     this.data = {};
     element.classList.add("chart");
     this.legend = el("div", { class: "chart-legend" });
-    element.replaceChildren(el("div", { class: "chart-head" }, el("div", { class: "chart-title" }, options.title), this.legend));
+    const title = el("div", { class: "chart-title" }, options.title);
+    element.replaceChildren(el("div", { class: "chart-head" }, title, this.legend));
     this.svg = document.createElementNS(SVG_NS, "svg");
     this.svg.setAttribute("viewBox", `0 0 ${CHART_W} ${CHART_H}`);
     this.svg.setAttribute("role", "img");

@@ -36,7 +36,8 @@ function renderGoals(item) {
     ...item.goal_examples.flatMap((e) => [
       el("figure", {}, el("img", { class: "thumb display", src: e.display_url, alt: e.filename }),
         el("figcaption", {}, e.filename)),
-      el("figure", {}, el("img", { class: "thumb pixelated model", src: e.model_url, alt: `model view of ${e.filename}` }),
+      el("figure", {},
+        el("img", { class: "thumb pixelated model", src: e.model_url, alt: `model view of ${e.filename}` }),
         el("figcaption", {}, "model view")),
     ])
   );

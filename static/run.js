@@ -140,7 +140,8 @@ async function refreshQueries() {
     ...done.map((q) => {
       const tag = q.status === "skipped" ? "skipped" : q.answer ? "yes" : "no";
       const label = tag === "skipped" ? "skip" : tag;
-      const title = `query #${q.id} · step ${q.env_step} · fψ ${fmtNumber(q.score, 2)}${q.labeler ? " · " + q.labeler : ""}`;
+      const title =
+        `query #${q.id} · step ${q.env_step} · fψ ${fmtNumber(q.score, 2)}` + (q.labeler ? " · " + q.labeler : "");
       return el(
         "figure",
         { "data-query-id": q.id, title },
@@ -154,8 +155,10 @@ async function refreshQueries() {
 
 async function refreshEvents() {
   const events = await api("GET", `/api/runs/${page.run.id}/events?limit=100`);
-  const items = events.map((e) => el("li", { class: e.level }, el("time", {}, fmtTime(e.created_at)), el("span", {}, e.message)));
-  document.getElementById("events").replaceChildren(...(items.length ? items : [el("li", { class: "muted" }, "No events.")]));
+  const items = events.map((e) =>
+    el("li", { class: e.level }, el("time", {}, fmtTime(e.created_at)), el("span", {}, e.message)));
+  if (!items.length) items.push(el("li", { class: "muted" }, "No events."));
+  document.getElementById("events").replaceChildren(...items);
 }
 
 async function runAction(action) {

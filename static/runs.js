@@ -1,5 +1,7 @@
 // Runs page: the table, refreshed every 3 s from /api/runs.
-import { api, el, fmtAge, fmtDuration, fmtPercent, fmtSteps, isActive, poll, setPendingBadge, statusPill } from "/static/app.js";
+import {
+  api, el, fmtAge, fmtDuration, fmtPercent, fmtSteps, isActive, poll, setPendingBadge, statusPill,
+} from "/static/app.js";
 
 const selected = new Set();
 
@@ -16,10 +18,11 @@ function runRow(run) {
   const eta = run.eta_seconds !== null && active ? ` · ETA ${fmtDuration(run.eta_seconds)}` : "";
   const bar = el("div");
   bar.style.width = `${(progress * 100).toFixed(1)}%`;
+  const steps = `${fmtSteps(run.step)} / ${fmtSteps(run.total_steps)}`;
   const progressCell = el(
     "td",
     { class: "progress-cell" },
-    el("div", { class: "small" }, `${fmtSteps(run.step)} / ${fmtSteps(run.total_steps)}`, el("span", { class: "muted" }, eta)),
+    el("div", { class: "small" }, steps, el("span", { class: "muted" }, eta)),
     el("div", { class: "progress" }, bar)
   );
   progressCell.style.minWidth = "170px";
@@ -29,7 +32,9 @@ function runRow(run) {
   }
   const name = el("td", {}, el("a", { href: `/runs/${run.id}` }, el("b", {}, `#${run.id}`)), " " + run.name);
   if (run.priority) name.append(" ", el("span", { class: "small muted", title: "priority" }, `p${run.priority}`));
-  const check = el("input", { type: "checkbox", class: "compare-check", value: run.id, "aria-label": `compare run ${run.id}` });
+  const check = el("input", {
+    type: "checkbox", class: "compare-check", value: run.id, "aria-label": `compare run ${run.id}`,
+  });
   check.defaultChecked = selected.has(run.id);
   return el(
     "tr",

@@ -252,3 +252,33 @@ def test_with_a_token_pages_need_the_login_and_logout_ends_it(
     page.goto(f"{server.url}/")
     expect(page).to_have_url(re.compile(r"/login\?next=%2F$"))
     assert errors == []
+
+
+def test_page_scripts_are_modules_and_show_markup_as_text(page: Page, live_server: str, store: Store) -> None:
+    """The style guide: page scripts are ES modules that import what they use (no shared globals) and build the DOM
+    with textContent, never from HTML strings: a run name, failure reason or event holding markup shows as text."""
+    root = Path(__file__).resolve().parent.parent
+    for script in (root / "static").glob("*.js"):
+        assert not re.search(r"innerHTML|outerHTML|insertAdjacentHTML|document\.write", script.read_text()), script.name
+    tags = [
+        tag for template in (root / "templates").glob("*.html")
+        for tag in re.findall(r'<script\b[^>]*\bsrc="/static/[^>]*>', template.read_text())
+    ]  # fmt: skip
+    assert tags and all('type="module"' in tag for tag in tags), tags
+
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    markup = '<img src="x" class="injected"> & <b>bold</b>'
+    run = store.create_run(env_id="VisualPusher-v0", algorithm="vice_raq", config={}, name=markup)
+    store.set_run_status(run_id=run.id, status=RunStatus.FAILED, reason=markup)
+    store.record_event(run_id=run.id, message=markup, level="error")
+    page.goto(live_server)
+    row = page.locator(f'tr[data-run-id="{run.id}"]')
+    expect(row).to_contain_text(markup)
+    expect(row.locator(".reason")).to_have_text(markup)
+    expect(row.locator(".status")).to_have_attribute("title", markup)
+    page.goto(f"{live_server}/runs/{run.id}")
+    expect(page.locator("#events li.error span").first).to_have_text(markup)
+    expect(page.locator("#run-status .status")).to_have_attribute("title", markup)
+    expect(page.locator(".injected")).to_have_count(0)
+    assert errors == []
