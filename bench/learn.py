@@ -1,6 +1,7 @@
 """A whole learning run through the real store, the real server and `raq oracle` answering queries.
 
     python bench/learn.py --task pusher --algorithm vice_raq --seed 0 --total-steps 100000
+    python bench/learn.py --task door --task-settings --seed 1 --total-steps 200000 --threads 1
 
 Writes <out>/curve.csv and <out>/curve.png (eval success rate and queries against env steps) and prints
 a summary line: env steps to first reach 90% eval success, queries asked, wall time, updates/s.
@@ -27,6 +28,7 @@ from app.store import Store  # noqa: E402
 from bench.plot import line_plot  # noqa: E402
 from bench.processes import stop_all  # noqa: E402
 from learner.config import TrainConfig  # noqa: E402
+from learner.envs import SIM_TASK_SETTINGS  # noqa: E402
 from sim import TASKS  # noqa: E402
 
 CURVE_METRICS = [
@@ -130,8 +132,13 @@ def main() -> int:
     parser.add_argument("--algorithm", default="vice_raq")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--total-steps", type=int, default=100_000)
-    parser.add_argument("--query-every", type=int, default=5000)
-    parser.add_argument("--query-budget", type=int, default=20)
+    parser.add_argument(
+        "--task-settings", action="store_true",
+        help="start from the settings the task was measured to learn with (learner.envs.SIM_TASK_SETTINGS, the New "
+        "run form's); --query-every, --query-budget and --set still win",
+    )  # fmt: skip
+    parser.add_argument("--query-every", type=int, default=None, help="default: TrainConfig's (5000)")
+    parser.add_argument("--query-budget", type=int, default=None, help="default: TrainConfig's (20)")
     parser.add_argument("--goals", type=int, default=10, help="goal examples from `raq goals`")
     parser.add_argument("--noise", type=float, default=0.0, help="oracle answer noise")
     parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="other TrainConfig fields")
@@ -160,10 +167,12 @@ def main() -> int:
         raise SystemExit(f"{data_dir} exists: remove it, choose another --out or --resume it")
     if args.resume and not (data_dir / "raq.sqlite3").exists():
         raise SystemExit(f"nothing to resume in {out}: no {data_dir / 'raq.sqlite3'}")
+    fields = dict(SIM_TASK_SETTINGS[TASKS[args.task]].fields) if args.task_settings else {}
+    given = {"query_every": args.query_every, "query_budget": args.query_budget}
+    fields |= {name: value for name, value in given.items() if value is not None} | parse_overrides(args.set)
     config = TrainConfig(
-        env_id=TASKS[args.task], algorithm=args.algorithm, seed=args.seed, total_steps=args.total_steps,
-        query_every=args.query_every, query_budget=args.query_budget, **parse_overrides(args.set),
-    )  # fmt: skip
+        env_id=TASKS[args.task], algorithm=args.algorithm, seed=args.seed, total_steps=args.total_steps, **fields
+    )
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     env = {**os.environ, "RAQ_DATA_DIR": str(data_dir), "RAQ_PORT": str(port), "PYTHONUNBUFFERED": "1"}
