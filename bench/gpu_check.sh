@@ -4,7 +4,8 @@
 #
 #   bash bench/gpu_check.sh speed            learner_speed and loop_speed on cuda (about 3 minutes)
 #   bash bench/gpu_check.sh learn MINUTES    learning runs side by side on the GPU for MINUTES: VICE-RAQ on the
-#                                            pusher (stops at 90%), the door and the picker, settings as README
+#                                            pusher (stops at 90%), the door and the picker, each with its task
+#                                            settings, for each seed in SEEDS (default 0; SEEDS="0 1 2": 9 runs)
 #   bash bench/gpu_check.sh door-sweep MIN   the door's classifier sweep, 8 runs side by side: {5, 10, 100} steps
 #                                            per epoch x lr {1e-4, 3e-4} (issue 11; the paper: 5 steps was best),
 #                                            and 5 and 10 steps at 3e-4 with a query every 1,000 steps and the "no"
@@ -80,18 +81,19 @@ if [ "$phase" = compare ]; then
   exit 0
 fi
 
-# learn: three runs side by side, each stopped after MINUTES (the pusher at its first 90% evaluation)
+# learn: the three tasks side by side for each seed in SEEDS (default 0), with the settings each task was measured to
+# learn with (bench/learn.py --task-settings), each stopped after MINUTES (the pusher at its first 90% evaluation)
 device=${DEVICE:-cuda}  # (DEVICE=cpu with replay_pipeline=device tries the whole phase on a machine without a GPU)
-common=(--seed 0 --max-minutes "$minutes")
-python3 bench/learn.py --task pusher --algorithm vice_raq "${common[@]}" --total-steps 100000 \
-  --stop-at-success 0.9 --set device="$device" replay_pipeline=device \
-  --out "$runs/pusher-vice_raq-seed0" > "$OUT/pusher.txt" 2>&1 &
-python3 bench/learn.py --task door --algorithm vice_raq "${common[@]}" --total-steps 200000 --query-every 1000 \
-  --query-budget 300 --set device="$device" replay_pipeline=device classifier_steps=10 no_answer_share=0.25 \
-  --out "$runs/door-vice_raq-seed0" > "$OUT/door.txt" 2>&1 &
-python3 bench/learn.py --task picker --algorithm vice_raq "${common[@]}" --total-steps 300000 --query-every 1000 \
-  --query-budget 300 --set device="$device" replay_pipeline=device no_answer_share=0.25 \
-  --out "$runs/picker-vice_raq-seed0" > "$OUT/picker.txt" 2>&1 &
+for seed in ${SEEDS:-0}; do
+  common=(--algorithm vice_raq --task-settings --seed "$seed" --max-minutes "$minutes")
+  python3 bench/learn.py --task pusher "${common[@]}" --total-steps 100000 --stop-at-success 0.9 \
+    --set device="$device" replay_pipeline=device \
+    --out "$runs/pusher-vice_raq-seed$seed" > "$OUT/pusher-seed$seed.txt" 2>&1 &
+  python3 bench/learn.py --task door "${common[@]}" --total-steps 200000 --set device="$device" replay_pipeline=device \
+    --out "$runs/door-vice_raq-seed$seed" > "$OUT/door-seed$seed.txt" 2>&1 &
+  python3 bench/learn.py --task picker "${common[@]}" --total-steps 300000 --set device="$device" replay_pipeline=device \
+    --out "$runs/picker-vice_raq-seed$seed" > "$OUT/picker-seed$seed.txt" 2>&1 &
+done
 wait
 collect
-tail -n 3 "$OUT"/pusher.txt "$OUT"/door.txt "$OUT"/picker.txt
+tail -n 3 "$OUT"/pusher-seed*.txt "$OUT"/door-seed*.txt "$OUT"/picker-seed*.txt
