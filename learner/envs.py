@@ -42,8 +42,8 @@ SIM_TASK_SETTINGS: dict[str, TaskSettings] = {
     ),
     "VisualDoor-v0": TaskSettings(
         {"query_every": 1000, "query_budget": 300, "classifier_steps": 10, "no_answer_share": 0.25},
-        "VICE-RAQ reached 100% success at 27K env steps on seed 0 (seeds 1 and 2 had not opened the door by 38K and "
-        "67K); asked every 10K steps, or with 5 or 100 classifier steps per epoch, no run opened it.",
+        "VICE-RAQ reached 100% success at 27K env steps on seed 0 (seed 2 first opened the door at 70K, seed 1 not "
+        "by 38K); asked every 10K steps, or with 5 or 100 classifier steps per epoch, no run opened it.",
     ),
     "VisualPicker-v0": TaskSettings(
         {"query_every": 1000, "query_budget": 300, "classifier_steps": 100, "no_answer_share": 0.25},
