@@ -125,6 +125,60 @@ def _interrupt(signum: int, _frame: object) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
+def write_report(
+    store: Store, run_id: int, out: Path, name: str, *, stop_reason: str | None, threads: int | None,
+    wall_minutes: float | None,
+) -> dict[str, object]:  # fmt: skip
+    """<out>/curve.csv, curve.png and summary.json of the run, from its store; prints the SUMMARY line."""
+    rows = curve_rows(store, run_id)
+    final = store.get_run(run_id=run_id)
+    with (out / "curve.csv").open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=["step", *CURVE_METRICS])
+        writer.writeheader()
+        writer.writerows(rows)
+    success = [(m.step, m.value) for m in store.metrics(run_id=run_id, names=["eval/success_rate"])]
+    budget = int(final.config.get("query_budget", TrainConfig.query_budget))  # (the run's own, as created)
+    queries = [(row["step"], row.get("queries/asked", 0) / max(1, budget)) for row in rows]
+    line_plot(
+        out / "curve.png",
+        {"eval success rate": success, f"queries asked / {budget}": queries},
+        title=f"{name}: {final.status}",
+        y_range=(0.0, 1.0),
+    )
+    reached = first_step_reaching(rows, "eval/success_rate", 0.9)
+    counts = store.query_counts(run_id=run_id)
+    updates = [row["perf/updates_per_second"] for row in rows if "perf/updates_per_second" in row]
+    summary = {
+        "run": name,
+        "status": final.status,
+        "stopped_because": stop_reason,
+        "learner_threads": threads,
+        "reason": final.status_reason,
+        "env_steps": final.step,
+        "steps_to_90pct_success": reached,
+        "final_success_rate": success[-1][1] if success else None,
+        "queries_asked": counts["asked"],
+        "queries_yes": counts["yes"],
+        "wall_minutes": None if wall_minutes is None else round(wall_minutes, 1),
+        "updates_per_second": round(sum(updates) / len(updates), 2) if updates else None,
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    print("SUMMARY " + json.dumps(summary), flush=True)
+    return summary
+
+
+def report_only(out: Path, name: str, *, threads: int | None) -> int:
+    """--report: the run's curve and summary as the end of a run writes them; the wall time is its learner's, from
+    its start to its last heartbeat (a resumed run: since the latest start)."""
+    store = Store(f"sqlite:///{(out / 'data' / 'raq.sqlite3').resolve()}")
+    run = store.list_runs()[0]
+    last = run.finished_at or run.heartbeat_at
+    wall_minutes = (last - run.started_at).total_seconds() / 60 if run.started_at and last else None
+    summary = write_report(store, run.id, out, name, stop_reason="report", threads=threads, wall_minutes=wall_minutes)
+    store.dispose()
+    return 0 if summary["status"] == "finished" else 1
+
+
 def main() -> int:
     signal.signal(signal.SIGTERM, _interrupt)  # background jobs ignore SIGINT: let SIGTERM stop the run cleanly
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -157,16 +211,22 @@ def main() -> int:
         help="continue the stopped run in --out from its checkpoint (wall time adds to the earlier summary's)",
     )  # fmt: skip
     parser.add_argument("--until-step", type=int, default=None, help="stop the run once it reaches this env step")
+    parser.add_argument(
+        "--report", action="store_true",
+        help="only write the curve and summary of the run in --out from its database (a run whose script was killed)",
+    )  # fmt: skip
     args = parser.parse_args()
 
     name = f"{args.task}-{args.algorithm}-seed{args.seed}"
     out = args.out or ROOT / "bench" / "out" / name
     out.mkdir(parents=True, exist_ok=True)
     data_dir = out / "data"
-    if data_dir.exists() and not args.resume:
+    if data_dir.exists() and not (args.resume or args.report):
         raise SystemExit(f"{data_dir} exists: remove it, choose another --out or --resume it")
-    if args.resume and not (data_dir / "raq.sqlite3").exists():
-        raise SystemExit(f"nothing to resume in {out}: no {data_dir / 'raq.sqlite3'}")
+    if (args.resume or args.report) and not (data_dir / "raq.sqlite3").exists():
+        raise SystemExit(f"no run in {out}: no {data_dir / 'raq.sqlite3'}")
+    if args.report:
+        return report_only(out, name, threads=args.threads)
     fields = dict(SIM_TASK_SETTINGS[TASKS[args.task]].fields) if args.task_settings else {}
     given = {"query_every": args.query_every, "query_budget": args.query_budget}
     fields |= {name: value for name, value in given.items() if value is not None} | parse_overrides(args.set)
@@ -235,41 +295,12 @@ def main() -> int:
             log.close()
     wall_seconds = time.monotonic() - started
 
-    rows = curve_rows(store, run.id)
-    final = store.get_run(run_id=run.id)
-    with (out / "curve.csv").open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=["step", *CURVE_METRICS])
-        writer.writeheader()
-        writer.writerows(rows)
-    success = [(m.step, m.value) for m in store.metrics(run_id=run.id, names=["eval/success_rate"])]
-    queries = [(row["step"], row.get("queries/asked", 0) / max(1, args.query_budget)) for row in rows]
-    line_plot(
-        out / "curve.png",
-        {"eval success rate": success, f"queries asked / {args.query_budget}": queries},
-        title=f"{name}: {final.status}",
-        y_range=(0.0, 1.0),
-    )
-    reached = first_step_reaching(rows, "eval/success_rate", 0.9)
-    counts = store.query_counts(run_id=run.id)
-    updates = [row["perf/updates_per_second"] for row in rows if "perf/updates_per_second" in row]
-    summary = {
-        "run": name,
-        "status": final.status,
-        "stopped_because": stop_reason,
-        "learner_threads": args.threads,
-        "reason": final.status_reason,
-        "env_steps": final.step,
-        "steps_to_90pct_success": reached,
-        "final_success_rate": success[-1][1] if success else None,
-        "queries_asked": counts["asked"],
-        "queries_yes": counts["yes"],
-        "wall_minutes": round(earlier_minutes + wall_seconds / 60, 1),
-        "updates_per_second": round(sum(updates) / len(updates), 2) if updates else None,
-    }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    print("SUMMARY " + json.dumps(summary), flush=True)
+    summary = write_report(
+        store, run.id, out, name, stop_reason=stop_reason, threads=args.threads,
+        wall_minutes=earlier_minutes + wall_seconds / 60,
+    )  # fmt: skip
     store.dispose()
-    return 0 if final.status == "finished" else 1
+    return 0 if summary["status"] == "finished" else 1
 
 
 if __name__ == "__main__":

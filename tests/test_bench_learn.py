@@ -1,0 +1,40 @@
+"""bench/learn.py end to end, as a learning run uses it: a real store, `raq serve`, `raq oracle` and `raq learn` on
+a simulated task with the settings it was measured to learn with, down to its curve and summary."""
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+SMALL = [  # a run of seconds: small networks and images, short intervals
+    "image_size=16", "conv_filters=4", "hidden_dim=32", "batch_size=16", "classifier_batch_size=8", "episode_steps=25",
+    "initial_random_steps=50", "epoch_steps=50", "eval_every=100", "eval_episodes=2", "checkpoint_every=100",
+    "log_every=50", "display_size=32", "rollout_size=16", "replay_capacity=1000", "query_every=50",
+]  # fmt: skip
+
+
+def test_a_run_with_task_settings_writes_its_curve_and_summary(tmp_path: Path) -> None:
+    out = tmp_path / "door-run"
+    command = [
+        sys.executable, "bench/learn.py", "--task", "door", "--task-settings", "--total-steps", "200", "--threads", "1",
+        "--goals", "4", "--out", str(out), "--set", *SMALL,
+    ]  # fmt: skip
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "finished" and summary["env_steps"] == 200
+    assert summary["queries_asked"] == 4  # one every 50 steps (--set wins over the task's 1,000)
+    assert "SUMMARY " + json.dumps(summary) in done.stdout
+    with (out / "curve.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(row["step"]) for row in rows][-1] == 200
+    assert (out / "curve.png").stat().st_size > 1000
+    stored = subprocess.run(
+        [sys.executable, "-c", "import sqlite3, sys; print(sqlite3.connect(sys.argv[1]).execute("
+         "'select config from runs').fetchone()[0])", str(out / "data" / "raq.sqlite3")],
+        capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    config = json.loads(stored.stdout)
+    assert config["query_budget"] == 300 and config["classifier_steps"] == 10 and config["no_answer_share"] == 0.25
