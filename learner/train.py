@@ -144,16 +144,21 @@ class Trainer:
             outcome = self._check_control()
             if outcome is not None:
                 return outcome
-            for episode, action in zip(self.episodes, self._actions(), strict=True):
-                self._env_step(episode, action)
+            episodes = self.episodes[: self._envs_this_batch()]
+            actions = self._actions(episodes)
+            # every env's physics and render first, then each step's bookkeeping and updates: on a GPU the renders
+            # then come in one burst instead of between the update graphs (same results: the actions are chosen)
+            outcomes = [self._simulate(episode, action) for episode, action in zip(episodes, actions, strict=True)]
+            for episode, action, env_outcome in zip(episodes, actions, outcomes, strict=True):
+                self._record_step(episode, action, env_outcome)
                 self._after_step()
-                if counters.step >= cfg.total_steps or self._control_due():
-                    break  # (the rest of the envs act anew after the control check)
         return self._finish()
 
-    def _control_due(self) -> bool:
-        """A checkpoint was just written (a higher-priority run may be waiting) or an interrupt came."""
-        return self.control.interrupted or self.counters.step % self.config.checkpoint_every == 0
+    def _envs_this_batch(self) -> int:
+        """All envs, but no step past the next checkpoint (a higher-priority run may be waiting: the control
+        check comes right after it) or the end of the run."""
+        cfg, step = self.config, self.counters.step
+        return min(len(self.episodes), cfg.total_steps - step, cfg.checkpoint_every - step % cfg.checkpoint_every)
 
     def _after_step(self) -> None:
         cfg, step = self.config, self.counters.step
@@ -236,21 +241,27 @@ class Trainer:
             with contextlib.suppress(Exception):  # closing must not hide the error that ended training
                 env.close()
 
-    def _actions(self) -> np.ndarray:
+    def _actions(self, episodes: "list[EnvEpisode]") -> np.ndarray:
         """One action per env: uniformly random during the warm-up, else the policy's, in one batch."""
         cfg, first = self.config, self.counters.step
-        actions = np.empty((len(self.episodes), self.action_dim), dtype=np.float32)
-        random = [index for index in range(len(self.episodes)) if first + index < cfg.initial_random_steps]
+        actions = np.empty((len(episodes), self.action_dim), dtype=np.float32)
+        random = [index for index in range(len(episodes)) if first + index < cfg.initial_random_steps]
         for index in random:
             actions[index] = self.rng.uniform(-1.0, 1.0, self.action_dim)
-        acting = [index for index in range(len(self.episodes)) if index not in random]
+        acting = [index for index in range(len(episodes)) if index not in random]
         if acting:
-            actions[acting] = self.agent.act_batch(np.stack([self.episodes[index].obs for index in acting]))
+            actions[acting] = self.agent.act_batch(np.stack([episodes[index].obs for index in acting]))
         return actions
 
-    def _env_step(self, episode: "EnvEpisode", action: np.ndarray) -> None:
+    def _simulate(self, episode: "EnvEpisode", action: np.ndarray) -> tuple:
+        """The env's step: its physics and its camera's render (gymnasium's 5-tuple)."""
+        return episode.env.step(scale_action(action, self.action_space))
+
+    def _record_step(self, episode: "EnvEpisode", action: np.ndarray, env_outcome: tuple) -> None:
+        """One env step of the loop: its transition into the replay, the observation offered to the queries, the
+        episode's end."""
         cfg = self.config
-        raw, reward, terminated, truncated, info = episode.env.step(scale_action(action, self.action_space))
+        raw, reward, terminated, truncated, info = env_outcome
         self.counters.step += 1
         episode.length += 1
         episode.total += float(reward)
