@@ -3,6 +3,7 @@
 # and the EGL packages in .gl/; carry both). Writes what it measured under $OUT.
 #
 #   bash bench/gpu_check.sh speed            learner_speed and loop_speed on cuda (about 3 minutes)
+#   bash bench/gpu_check.sh loop             loop_speed at 4 envs, as CUDA graphs and then torch.compile + CUDA graphs
 #   bash bench/gpu_check.sh learn MINUTES    learning runs side by side on the GPU for MINUTES: VICE-RAQ on the
 #                                            pusher (stops at 90%), the door and the picker, each with its task
 #                                            settings, for each seed in SEEDS (default 0; SEEDS="0 1 2": 9 runs)
@@ -11,6 +12,12 @@
 #                                            and 5 and 10 steps at 3e-4 with a query every 1,000 steps and the "no"
 #                                            answers as a quarter of the negatives (README: why the door gets
 #                                            no further)
+#   bash bench/gpu_check.sh lease SECONDS    one lease's whole check within SECONDS (default 540, the pip install
+#                                            counted): learner_speed (CUDA graphs only, torch.compile too) and
+#                                            loop_speed at 1 and 4 envs, then learning runs side by side for the
+#                                            time left: VICE-RAQ on the pusher with 4 envs in lockstep (stops at
+#                                            90%; PUSHER_SEEDS, default "0 1 2") and on the door with its task
+#                                            settings (DOOR_SEEDS, default "0 1"); all comes back in 5 files
 #   bash bench/gpu_check.sh compare MINUTES  the paper's comparison on the pusher (issue 11): every reward method x
 #                                            seeds 0-2 side by side, to 30K env steps each or MINUTES, then
 #                                            bench/compare.py --by-method (METHODS, SEEDS: fewer, to try it)
@@ -36,12 +43,48 @@ if [ "$phase" = speed ]; then
   exit 0
 fi
 
+if [ "$phase" = loop ]; then
+  timeout 75 python3 bench/loop_speed.py --device cuda --steps 3000 --envs 4 2>&1 | tee "$OUT/loop_speed.txt"
+  timeout 120 python3 bench/loop_speed.py --device cuda --steps 3000 --envs 4 --set compile_updates=true 2>&1 \
+    | tee -a "$OUT/loop_speed.txt"
+  exit 0
+fi
+
 runs=bench/out/gpu
 mkdir -p "$runs"
 collect() {  # what comes back: each run's curve, summary and the end of its learner log, in one archive
   for run in "$runs"/*/; do tail -n 40 "$run/learn.log" > "$run/learn-tail.log" 2>/dev/null; done
   tar czf "$OUT/runs.tar.gz" "$runs"/*/curve.csv "$runs"/*/curve.png "$runs"/*/summary.json "$runs"/*/learn-tail.log
 }
+if [ "$phase" = lease ]; then
+  deadline=$((SECONDS + ${2:-540}))  # (bash's SECONDS counts from the script's start, the install included)
+  timeout 200 python3 bench/learner_speed.py --device "${DEVICE:-cuda}" --graphs-only --compile --updates 500 --blocks 2 2>&1 \
+    | tee "$OUT/learner_speed.txt"
+  for envs in 1 4; do
+    timeout 75 python3 bench/loop_speed.py --device "${DEVICE:-cuda}" --steps 3000 --envs "$envs" 2>&1 | tee -a "$OUT/loop_speed.txt"
+  done
+  minutes=$(python3 -c "print(max(1.0, ($deadline - $SECONDS - 50) / 60))")  # (50 s to stop, checkpoint and pack)
+  echo "learning runs for $minutes minutes" | tee "$OUT/learn.txt"
+  mkdir -p "$runs/logs"
+  common=(--algorithm vice_raq --task-settings --max-minutes "$minutes" --threads 2)
+  for seed in ${PUSHER_SEEDS:-0 1 2}; do
+    python3 bench/learn.py --task pusher "${common[@]}" --seed "$seed" --total-steps 100000 --stop-at-success 0.9 \
+      --set device="${DEVICE:-cuda}" replay_pipeline=device num_envs=4 \
+      --out "$runs/pusher-vice_raq-seed$seed-envs4" > "$runs/logs/pusher-seed$seed.txt" 2>&1 &
+  done
+  for seed in ${DOOR_SEEDS:-0 1}; do
+    python3 bench/learn.py --task door "${common[@]}" --seed "$seed" --total-steps 200000 \
+      --set device="${DEVICE:-cuda}" replay_pipeline=device \
+      --out "$runs/door-vice_raq-seed$seed" > "$runs/logs/door-seed$seed.txt" 2>&1 &
+  done
+  wait
+  for run in "$runs"/*/; do tail -n 40 "$run/learn.log" > "$run/learn-tail.log" 2>/dev/null; done
+  tar czf "$OUT/runs.tar.gz" "$runs"/*/curve.csv "$runs"/*/curve.png "$runs"/*/summary.json "$runs"/*/learn-tail.log \
+    "$runs"/logs/*.txt
+  for log in "$runs"/logs/*.txt; do echo "== $log"; tail -n 2 "$log"; done | tee -a "$OUT/learn.txt"
+  exit 0
+fi
+
 if [ "$phase" = door-sweep ]; then
   for steps in 5 10 100; do
     for lr in 1e-4 3e-4; do

@@ -14,7 +14,8 @@ GPU, sampling, shift and rewards f_psi(s') inside the update, the update and the
 graphs, eagerly and as graphs; the graphed updates run under `torch.cuda.set_sync_debug_mode("error")`, so a host
 sync inside an update would stop the benchmark.
 
-    python bench/learner_speed.py [--updates 300] [--blocks 2] [--device cpu|cuda [--compile]] [--threads N]
+    python bench/learner_speed.py [--updates 300] [--blocks 2] [--device cpu|cuda [--compile] [--graphs-only]]
+                                  [--threads N]
 """
 
 import argparse
@@ -179,6 +180,9 @@ def main() -> int:
     parser.add_argument("--blocks", type=int, default=2, help="timed blocks per configuration (the best counts)")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--compile", action="store_true", help="on a GPU also measure compile_updates=True")
+    parser.add_argument(
+        "--graphs-only", action="store_true", help="on a GPU measure only the device pipeline's CUDA graphs"
+    )
     parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
     args = parser.parse_args()
     if args.threads:
@@ -189,7 +193,9 @@ def main() -> int:
     paper = TrainConfig.paper(device=args.device)
     default = TrainConfig(device=args.device, **({"precision": precision} if precision else {}))
     results = {}
-    for name, config in (("paper", paper), ("default", default)):
+    graphs_only = args.graphs_only and args.device.startswith("cuda")
+    host_configs = () if graphs_only else (("paper", paper), ("default", default))
+    for name, config in host_configs:
         results[name], parts = measure(config, args.updates, args.transitions, args.blocks)
         print(
             f"{name:8s} updates/s {results[name]:7.2f}   (shared_encoder={config.shared_encoder}, "
@@ -199,9 +205,14 @@ def main() -> int:
         )
         if parts:
             print("         ms per update: " + ", ".join(f"{part} {ms:.1f}" for part, ms in parts.items()), flush=True)
-    print(f"ratio default/paper: {results['default'] / results['paper']:.2f}x")
+    if results:
+        print(f"ratio default/paper: {results['default'] / results['paper']:.2f}x")
     if args.device.startswith("cuda"):
-        variants = [(precision, graphs, False) for precision in ("fp32", "bf16") for graphs in (False, True)]
+        variants = [
+            (precision, graphs, False)
+            for precision in ("fp32", "bf16")
+            for graphs in ((True,) if graphs_only else (False, True))
+        ]
         if args.compile:
             variants.append(("bf16", True, True))
         for precision, graphs, compiled in variants:
