@@ -3,6 +3,7 @@ a bring-your-own env without success, answers reaching the example sets, SIGTERM
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -506,14 +507,18 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
     run_id = create_run(store, goal_set_id, config)
     trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
     steps = [0, 0, 0]
+    events = []  # "S" an env step, "U" a step's SAC updates
     for index, episode in enumerate(trainer.episodes):
         original = episode.env.step
 
         def counted(action: np.ndarray, index: int = index, original=original):
             steps[index] += 1
+            events.append("S")
             return original(action)
 
         episode.env.step = counted
+    sac_updates = trainer._sac_updates
+    trainer._sac_updates = lambda: events.append("U") or sac_updates()
     batches = []
     act_batch = trainer.agent.act_batch
     trainer.agent.act_batch = lambda observations, deterministic=False: (
@@ -526,6 +531,9 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
     assert trainer.counters.step == 200 and trainer.replay.added == 200
     assert sum(steps) == 200 and min(steps) >= 60, steps
     assert steps[0] == 68  # the checkpoint at step 100 ended a batch after the first env; the next began with it
+    # a batch's envs all step (physics and render) before its steps' updates run, one update per env step
+    runs = re.findall(r"S+|U+", "".join(events))[2:]  # (after the warm-up's steps and the first updates)
+    assert runs.count("SSS") > 30 and all(len(s) == len(u) for s, u in zip(runs[::2], runs[1::2], strict=True)), runs
     # one forward pass per 3 env steps after the warm-up (the evaluations act on their 2 episodes in one batch)
     assert batches.count(3) >= (200 - config.initial_random_steps) // 3 - 2 and batches.count(2) > 0
     state = load_checkpoint(checkpoint_path(settings.checkpoint_dir, run_id))
