@@ -122,7 +122,11 @@ def main() -> int:
     print("| run | first ≥ 90% eval success | env steps run | last eval success | queries | wall | updates/s | ended |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for run_dir in args.runs:
-        print(table_row(json.loads((run_dir / "summary.json").read_text())))
+        if (run_dir / "summary.json").exists():
+            print(table_row(json.loads((run_dir / "summary.json").read_text())))
+        else:  # a run whose script died before its summary: its curve is still plotted
+            reached = first_at_least(series[run_dir.name], 0.9)
+            print(f"| {run_dir.name} | {f'{reached:,}' if reached else 'not reached'} | no summary.json | |||||")
     return 0
 
 
