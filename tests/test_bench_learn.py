@@ -38,3 +38,16 @@ def test_a_run_with_task_settings_writes_its_curve_and_summary(tmp_path: Path) -
     )  # fmt: skip
     config = json.loads(stored.stdout)
     assert config["query_budget"] == 300 and config["classifier_steps"] == 10 and config["no_answer_share"] == 0.25
+
+    # --report writes them again from the run's database alone (a run whose script was killed before them)
+    (out / "summary.json").unlink()
+    (out / "curve.png").unlink()
+    report = [sys.executable, "bench/learn.py", "--task", "door", "--report", "--out", str(out)]
+    again = subprocess.run(report, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-2000:]
+    rewritten = json.loads((out / "summary.json").read_text())
+    assert {key: rewritten[key] for key in ("status", "env_steps", "queries_asked", "steps_to_90pct_success")} == {
+        key: summary[key] for key in ("status", "env_steps", "queries_asked", "steps_to_90pct_success")
+    }
+    assert rewritten["stopped_because"] == "report" and rewritten["wall_minutes"] is not None
+    assert (out / "curve.png").stat().st_size > 1000
