@@ -150,13 +150,10 @@ def create_sweep(body: SweepCreate, store: StoreDep, settings: SettingsDep, _aut
             check_goal_set(store, algorithm=config.algorithm, goal_set_id=body.goal_set_id)
             checked.append(config)
     prefix = body.name.strip() or f"sweep {body.env_id}"
-    runs = [
-        _create(
-            store, config, goal_set_id=body.goal_set_id, priority=body.priority,
-            name=f"{prefix} · {config.algorithm} · seed {config.seed}"[:200],
-        )  # fmt: skip
-        for config in checked
-    ]
+    runs = []
+    for config in checked:
+        name = f"{prefix} · {config.algorithm} · seed {config.seed}"[:200]
+        runs.append(_create(store, config, goal_set_id=body.goal_set_id, priority=body.priority, name=name))
     waiting = store.queue_report()
     return [run_out(store, run, waiting) for run in runs]
 
