@@ -5,7 +5,7 @@
 #   bash bench/gpu_check.sh speed            learner_speed and loop_speed on cuda (about 3 minutes)
 #   bash bench/gpu_check.sh loop             loop_speed at 4 envs, as CUDA graphs and then torch.compile + CUDA graphs
 #   bash bench/gpu_check.sh learn MINUTES    learning runs side by side on the GPU for MINUTES: VICE-RAQ on the
-#                                            pusher (stops at 90%), the door and the picker, each with its task
+#                                            pusher (4 envs, stops at 90%), the door and the picker, each with its task
 #                                            settings, for each seed in SEEDS (default 0; SEEDS="0 1 2": 9 runs)
 #   bash bench/gpu_check.sh door-sweep MIN   the door's classifier sweep, 8 runs side by side: {5, 10, 100} steps
 #                                            per epoch x lr {1e-4, 3e-4} (issue 11; the paper: 5 steps was best),
@@ -51,10 +51,13 @@ if [ "$phase" = loop ]; then
 fi
 
 runs=bench/out/gpu
-mkdir -p "$runs"
-collect() {  # what comes back: each run's curve, summary and the end of its learner log, in one archive
-  for run in "$runs"/*/; do tail -n 40 "$run/learn.log" > "$run/learn-tail.log" 2>/dev/null; done
-  tar czf "$OUT/runs.tar.gz" "$runs"/*/curve.csv "$runs"/*/curve.png "$runs"/*/summary.json "$runs"/*/learn-tail.log
+logs=$runs/logs  # each bench/learn.py's own output (the device tool brings back at most 8 files: they go in the archive)
+mkdir -p "$logs"
+collect() {  # what comes back: each run's curve, summary, progress and the end of its learner log, in one archive
+  for run in "$runs"/*/; do [ -f "$run/learn.log" ] && tail -n 40 "$run/learn.log" > "$run/learn-tail.log"; done
+  tar czf "$OUT/runs.tar.gz" "$runs"/*/curve.csv "$runs"/*/curve.png "$runs"/*/summary.json "$runs"/*/learn-tail.log \
+    "$logs"/*.txt
+  for log in "$logs"/*.txt; do echo "== $log"; tail -n 2 "$log"; done | tee -a "$OUT/learn.txt"
 }
 if [ "$phase" = lease ]; then
   deadline=$((SECONDS + ${2:-540}))  # (bash's SECONDS counts from the script's start, the install included)
@@ -65,23 +68,19 @@ if [ "$phase" = lease ]; then
   done
   minutes=$(python3 -c "print(max(1.0, ($deadline - $SECONDS - 50) / 60))")  # (50 s to stop, checkpoint and pack)
   echo "learning runs for $minutes minutes" | tee "$OUT/learn.txt"
-  mkdir -p "$runs/logs"
   common=(--algorithm vice_raq --task-settings --max-minutes "$minutes" --threads 2)
   for seed in ${PUSHER_SEEDS:-0 1 2}; do
     python3 bench/learn.py --task pusher "${common[@]}" --seed "$seed" --total-steps 100000 --stop-at-success 0.9 \
       --set device="${DEVICE:-cuda}" replay_pipeline=device num_envs=4 \
-      --out "$runs/pusher-vice_raq-seed$seed-envs4" > "$runs/logs/pusher-seed$seed.txt" 2>&1 &
+      --out "$runs/pusher-vice_raq-seed$seed-envs4" > "$logs/pusher-seed$seed.txt" 2>&1 &
   done
   for seed in ${DOOR_SEEDS:-0 1}; do
     python3 bench/learn.py --task door "${common[@]}" --seed "$seed" --total-steps 200000 \
       --set device="${DEVICE:-cuda}" replay_pipeline=device \
-      --out "$runs/door-vice_raq-seed$seed" > "$runs/logs/door-seed$seed.txt" 2>&1 &
+      --out "$runs/door-vice_raq-seed$seed" > "$logs/door-seed$seed.txt" 2>&1 &
   done
   wait
-  for run in "$runs"/*/; do tail -n 40 "$run/learn.log" > "$run/learn-tail.log" 2>/dev/null; done
-  tar czf "$OUT/runs.tar.gz" "$runs"/*/curve.csv "$runs"/*/curve.png "$runs"/*/summary.json "$runs"/*/learn-tail.log \
-    "$runs"/logs/*.txt
-  for log in "$runs"/logs/*.txt; do echo "== $log"; tail -n 2 "$log"; done | tee -a "$OUT/learn.txt"
+  collect
   exit 0
 fi
 
@@ -90,18 +89,17 @@ if [ "$phase" = door-sweep ]; then
     for lr in 1e-4 3e-4; do
       python3 bench/learn.py --task door --algorithm vice_raq --seed 0 --max-minutes "$minutes" --total-steps 200000 \
         --query-every 10000 --query-budget 20 --set device="${DEVICE:-cuda}" replay_pipeline=device num_envs=4 \
-        classifier_steps=$steps classifier_lr=$lr --out "$runs/door-c${steps}-lr${lr}" > "$OUT/door-c${steps}-lr${lr}.txt" 2>&1 &
+        classifier_steps=$steps classifier_lr=$lr --out "$runs/door-c${steps}-lr${lr}" > "$logs/door-c${steps}-lr${lr}.txt" 2>&1 &
     done
   done
   for steps in 5 10; do
     python3 bench/learn.py --task door --algorithm vice_raq --seed 0 --max-minutes "$minutes" --total-steps 200000 \
       --query-every 1000 --query-budget 300 --set device="${DEVICE:-cuda}" replay_pipeline=device num_envs=4 \
       classifier_steps=$steps classifier_lr=3e-4 no_answer_share=0.25 \
-      --out "$runs/door-c${steps}-lr3e-4-noanswers" > "$OUT/door-c${steps}-lr3e-4-noanswers.txt" 2>&1 &
+      --out "$runs/door-c${steps}-lr3e-4-noanswers" > "$logs/door-c${steps}-lr3e-4-noanswers.txt" 2>&1 &
   done
   wait
   collect
-  tail -n 2 "$OUT"/door-*.txt
   exit 0
 fi
 
@@ -113,12 +111,13 @@ if [ "$phase" = compare ]; then
       compared+=("$runs/compare/pusher-$method-seed$seed")
       python3 bench/learn.py --task pusher --algorithm "$method" --seed "$seed" --max-minutes "$minutes" \
         --total-steps 30000 --set device="${DEVICE:-cuda}" replay_pipeline=device \
-        --out "$runs/compare/pusher-$method-seed$seed" > "$OUT/pusher-$method-seed$seed.txt" 2>&1 &
+        --out "$runs/compare/pusher-$method-seed$seed" > "$logs/pusher-$method-seed$seed.txt" 2>&1 &
     done
   done
   wait
   for run in "${compared[@]}"; do tail -n 40 "$run/learn.log" > "$run/learn-tail.log" 2>/dev/null; done
-  tar czf "$OUT/compare.tar.gz" "$runs"/compare/*/curve.csv "$runs"/compare/*/summary.json "$runs"/compare/*/learn-tail.log
+  tar czf "$OUT/compare.tar.gz" "$runs"/compare/*/curve.csv "$runs"/compare/*/summary.json "$runs"/compare/*/learn-tail.log \
+    "$logs"/pusher-*.txt
   python3 bench/compare.py --by-method --until 30000 "${compared[@]}" --out "$OUT/pusher-methods.png" \
     --title "pusher: eval success, mean and min-max over seeds" | tee "$OUT/pusher-methods.md"
   exit 0
@@ -128,15 +127,14 @@ fi
 # learn with (bench/learn.py --task-settings), each stopped after MINUTES (the pusher at its first 90% evaluation)
 device=${DEVICE:-cuda}  # (DEVICE=cpu with replay_pipeline=device tries the whole phase on a machine without a GPU)
 for seed in ${SEEDS:-0}; do
-  common=(--algorithm vice_raq --task-settings --seed "$seed" --max-minutes "$minutes")
+  common=(--algorithm vice_raq --task-settings --seed "$seed" --max-minutes "$minutes" --threads 2)
   python3 bench/learn.py --task pusher "${common[@]}" --total-steps 100000 --stop-at-success 0.9 \
-    --set device="$device" replay_pipeline=device \
-    --out "$runs/pusher-vice_raq-seed$seed" > "$OUT/pusher-seed$seed.txt" 2>&1 &
+    --set device="$device" replay_pipeline=device num_envs=4 \
+    --out "$runs/pusher-vice_raq-seed$seed" > "$logs/pusher-seed$seed.txt" 2>&1 &
   python3 bench/learn.py --task door "${common[@]}" --total-steps 200000 --set device="$device" replay_pipeline=device \
-    --out "$runs/door-vice_raq-seed$seed" > "$OUT/door-seed$seed.txt" 2>&1 &
+    --out "$runs/door-vice_raq-seed$seed" > "$logs/door-seed$seed.txt" 2>&1 &
   python3 bench/learn.py --task picker "${common[@]}" --total-steps 300000 --set device="$device" replay_pipeline=device \
-    --out "$runs/picker-vice_raq-seed$seed" > "$OUT/picker-seed$seed.txt" 2>&1 &
+    --out "$runs/picker-vice_raq-seed$seed" > "$logs/picker-seed$seed.txt" 2>&1 &
 done
 wait
 collect
-tail -n 3 "$OUT"/pusher-seed*.txt "$OUT"/door-seed*.txt "$OUT"/picker-seed*.txt
