@@ -59,26 +59,29 @@ collect() {  # what comes back: each run's curve, summary, progress and the end 
     "$logs"/*.txt
   for log in "$logs"/*.txt; do echo "== $log"; tail -n 2 "$log"; done | tee -a "$OUT/learn.txt"
 }
+device=${DEVICE:-cuda}  # (DEVICE=cpu with replay_pipeline=device tries a phase on a machine without a GPU)
+learn_run() {  # TASK SEED MINUTES: VICE-RAQ in the background with the settings the task was measured to learn with
+  local task=$1 seed=$2 steps
+  local extra=(--set device="$device" replay_pipeline=device)
+  case $task in
+    pusher) steps=100000; extra=(--stop-at-success 0.9 "${extra[@]}" num_envs=4) ;;  # (4 envs: measured on the H100)
+    door) steps=200000 ;;
+    picker) steps=300000 ;;
+  esac
+  python3 bench/learn.py --task "$task" --algorithm vice_raq --task-settings --seed "$seed" --max-minutes "$3" \
+    --threads 2 --total-steps "$steps" "${extra[@]}" --out "$runs/$task-vice_raq-seed$seed" > "$logs/$task-seed$seed.txt" 2>&1 &
+}
 if [ "$phase" = lease ]; then
   deadline=$((SECONDS + ${2:-540}))  # (bash's SECONDS counts from the script's start, the install included)
-  timeout 200 python3 bench/learner_speed.py --device "${DEVICE:-cuda}" --graphs-only --compile --updates 500 --blocks 2 2>&1 \
+  timeout 200 python3 bench/learner_speed.py --device "$device" --graphs-only --compile --updates 500 --blocks 2 2>&1 \
     | tee "$OUT/learner_speed.txt"
   for envs in 1 4; do
-    timeout 75 python3 bench/loop_speed.py --device "${DEVICE:-cuda}" --steps 3000 --envs "$envs" 2>&1 | tee -a "$OUT/loop_speed.txt"
+    timeout 75 python3 bench/loop_speed.py --device "$device" --steps 3000 --envs "$envs" 2>&1 | tee -a "$OUT/loop_speed.txt"
   done
   minutes=$(python3 -c "print(max(1.0, ($deadline - $SECONDS - 50) / 60))")  # (50 s to stop, checkpoint and pack)
   echo "learning runs for $minutes minutes" | tee "$OUT/learn.txt"
-  common=(--algorithm vice_raq --task-settings --max-minutes "$minutes" --threads 2)
-  for seed in ${PUSHER_SEEDS:-0 1 2}; do
-    python3 bench/learn.py --task pusher "${common[@]}" --seed "$seed" --total-steps 100000 --stop-at-success 0.9 \
-      --set device="${DEVICE:-cuda}" replay_pipeline=device num_envs=4 \
-      --out "$runs/pusher-vice_raq-seed$seed-envs4" > "$logs/pusher-seed$seed.txt" 2>&1 &
-  done
-  for seed in ${DOOR_SEEDS:-0 1}; do
-    python3 bench/learn.py --task door "${common[@]}" --seed "$seed" --total-steps 200000 \
-      --set device="${DEVICE:-cuda}" replay_pipeline=device \
-      --out "$runs/door-vice_raq-seed$seed" > "$logs/door-seed$seed.txt" 2>&1 &
-  done
+  for seed in ${PUSHER_SEEDS:-0 1 2}; do learn_run pusher "$seed" "$minutes"; done
+  for seed in ${DOOR_SEEDS:-0 1}; do learn_run door "$seed" "$minutes"; done
   wait
   collect
   exit 0
@@ -88,13 +91,13 @@ if [ "$phase" = door-sweep ]; then
   for steps in 5 10 100; do
     for lr in 1e-4 3e-4; do
       python3 bench/learn.py --task door --algorithm vice_raq --seed 0 --max-minutes "$minutes" --total-steps 200000 \
-        --query-every 10000 --query-budget 20 --set device="${DEVICE:-cuda}" replay_pipeline=device num_envs=4 \
+        --query-every 10000 --query-budget 20 --set device="$device" replay_pipeline=device num_envs=4 \
         classifier_steps=$steps classifier_lr=$lr --out "$runs/door-c${steps}-lr${lr}" > "$logs/door-c${steps}-lr${lr}.txt" 2>&1 &
     done
   done
   for steps in 5 10; do
     python3 bench/learn.py --task door --algorithm vice_raq --seed 0 --max-minutes "$minutes" --total-steps 200000 \
-      --query-every 1000 --query-budget 300 --set device="${DEVICE:-cuda}" replay_pipeline=device num_envs=4 \
+      --query-every 1000 --query-budget 300 --set device="$device" replay_pipeline=device num_envs=4 \
       classifier_steps=$steps classifier_lr=3e-4 no_answer_share=0.25 \
       --out "$runs/door-c${steps}-lr3e-4-noanswers" > "$logs/door-c${steps}-lr3e-4-noanswers.txt" 2>&1 &
   done
@@ -110,7 +113,7 @@ if [ "$phase" = compare ]; then
     for seed in ${SEEDS:-0 1 2}; do
       compared+=("$runs/compare/pusher-$method-seed$seed")
       python3 bench/learn.py --task pusher --algorithm "$method" --seed "$seed" --max-minutes "$minutes" \
-        --total-steps 30000 --set device="${DEVICE:-cuda}" replay_pipeline=device \
+        --total-steps 30000 --set device="$device" replay_pipeline=device \
         --out "$runs/compare/pusher-$method-seed$seed" > "$logs/pusher-$method-seed$seed.txt" 2>&1 &
     done
   done
@@ -125,16 +128,8 @@ fi
 
 # learn: the three tasks side by side for each seed in SEEDS (default 0), with the settings each task was measured to
 # learn with (bench/learn.py --task-settings), each stopped after MINUTES (the pusher at its first 90% evaluation)
-device=${DEVICE:-cuda}  # (DEVICE=cpu with replay_pipeline=device tries the whole phase on a machine without a GPU)
 for seed in ${SEEDS:-0}; do
-  common=(--algorithm vice_raq --task-settings --seed "$seed" --max-minutes "$minutes" --threads 2)
-  python3 bench/learn.py --task pusher "${common[@]}" --total-steps 100000 --stop-at-success 0.9 \
-    --set device="$device" replay_pipeline=device num_envs=4 \
-    --out "$runs/pusher-vice_raq-seed$seed" > "$logs/pusher-seed$seed.txt" 2>&1 &
-  python3 bench/learn.py --task door "${common[@]}" --total-steps 200000 --set device="$device" replay_pipeline=device \
-    --out "$runs/door-vice_raq-seed$seed" > "$logs/door-seed$seed.txt" 2>&1 &
-  python3 bench/learn.py --task picker "${common[@]}" --total-steps 300000 --set device="$device" replay_pipeline=device \
-    --out "$runs/picker-vice_raq-seed$seed" > "$logs/picker-seed$seed.txt" 2>&1 &
+  for task in pusher door picker; do learn_run "$task" "$seed" "$minutes"; done
 done
 wait
 collect
