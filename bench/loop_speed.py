@@ -55,27 +55,32 @@ WARM_UP = 1000
 
 
 class PartTimer:
-    """Wall seconds spent in chosen methods of the trainer once switched on; a call made inside another timed
-    call (acting during an evaluation) counts for the outer one only."""
+    """Wall seconds spent in chosen methods of the trainer once switched on. A call made inside another timed
+    call on the same thread (acting during an evaluation) counts for the outer one only; an `inner` part is timed
+    wherever it runs (the updates on the update thread, the env's step inside the loop's step-and-update part)
+    and is a share of another part, not a part of its own."""
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = defaultdict(float)
+        self.inner_seconds: dict[str, float] = defaultdict(float)
         self.on = False  # switched on at the end of the warm-up
-        self.inside = False
+        self.local = threading.local()
 
-    def wrap(self, owner: Any, name: str, part: str) -> None:
+    def wrap(self, owner: Any, name: str, part: str, inner: bool = False) -> None:
         original: Callable[..., Any] = getattr(owner, name)
+        seconds = self.inner_seconds if inner else self.seconds
 
         def timed(*args: Any, **kwargs: Any) -> Any:
-            if self.inside or not self.on:
+            inside = getattr(self.local, "inside", False)
+            if not self.on or (inside and not inner):
                 return original(*args, **kwargs)
-            self.inside = True
+            self.local.inside = True
             start = time.perf_counter()
             try:
                 return original(*args, **kwargs)
             finally:
-                self.seconds[part] += time.perf_counter() - start
-                self.inside = False
+                seconds[part] += time.perf_counter() - start
+                self.local.inside = inside
 
         setattr(owner, name, timed)
 
@@ -137,13 +142,14 @@ def main() -> int:
             checkpoint_file=Path(tmp) / "checkpoint.pt",
         )  # fmt: skip
         timer = PartTimer()
-        timer.wrap(trainer, "_sac_updates", "SAC updates")
+        timer.wrap(trainer, "_step_envs_and_update", "env steps and SAC updates")
+        timer.wrap(trainer, "_sac_updates", "SAC updates", inner=True)
         timer.wrap(trainer, "_end_of_epoch", "classifier epochs")
         timer.wrap(trainer, "_evaluate", "evaluation")
         timer.wrap(trainer, "_observe", "query scoring")
         timer.wrap(trainer, "_log", "metrics")
         for episode in trainer.episodes:
-            timer.wrap(episode.env, "step", "env step")
+            timer.wrap(episode.env, "step", "env step", inner=True)
         timer.wrap(trainer, "_actions", "acting")
         started: list[float] = []
         original_after_step = trainer._after_step
@@ -171,10 +177,15 @@ def main() -> int:
             trainer.close()
             store.dispose()
     steps = args.steps
-    update_seconds = timer.seconds["SAC updates"]
+    update_seconds = timer.inner_seconds["SAC updates"]
     e = steps / elapsed
     u = update_rate if args.device.startswith("cuda") else steps * config.updates_per_step / update_seconds
     print("ms per env step: " + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.seconds.items()))
+    where = "on the update thread while the envs step" if trainer.update_thread is not None else "after the envs step"
+    print(
+        "of which: " + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.inner_seconds.items())
+        + f" (the updates {where})"
+    )
     other = elapsed - sum(timer.seconds.values())
     print(f"ms per env step outside the timed parts (replay, bookkeeping, heartbeats): {1000 * other / steps:.1f}")
     if not args.device.startswith("cuda"):  # (on a GPU the time spent in the updates is not their cost)

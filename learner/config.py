@@ -120,6 +120,8 @@ class TrainConfig:
     """Device pipeline only: torch.compile the update and the classifier step before graph capture."""
     replay_pipeline: Literal["auto", "host", "device"] = "auto"
     """Batches sampled and rewarded on the host (numpy, cached f_psi) or device (CUDA graphs); auto: GPU."""
+    update_thread: Literal["auto", "on", "off"] = "auto"
+    """SAC updates on a second thread while the envs step (MuJoCo leaves the GIL); auto: on unless on a GPU."""
 
     # --- reward classifier f_psi
     classifier_lr: float = 3e-4

@@ -1,8 +1,9 @@
 """The training loop of one run: SAC from pixels with the run's reward method, reading and writing only the Store.
 
-Per environment step t -> t+1 (Alg. 2): act (uniformly at random for the first initial_random_steps), store
-(s_t, a_t, s_{t+1}), score s_{t+1} as a query candidate; then, at their intervals: read answers, train f_psi
-(epoch ends), ask a query, do updates_per_step SAC updates, evaluate, record metrics, checkpoint, heartbeat.
+Per environment step t -> t+1 (Alg. 2): act (uniformly at random for the first initial_random_steps), step the
+env while updates_per_step SAC updates run on the update thread (after the warm-up; on the replay as it was before
+the step), store (s_t, a_t, s_{t+1}), score s_{t+1} as a query candidate; then, at their intervals: read answers,
+train f_psi (epoch ends), ask a query, evaluate, record metrics, checkpoint, heartbeat.
 
 Reward timing: the transition (s_t, a_t, s_{t+1}) is rewarded r = f_psi(s_{t+1}) (sparse: success(s_{t+1})),
 so the action that reaches the goal is the one credited; Alg. 2 writes r(s_t) but the state it means is the
@@ -15,6 +16,7 @@ import io
 import json
 import threading
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -120,6 +122,11 @@ class Trainer:
             config, envs=self.eval_envs, agent=self.agent, reward_model=self.reward_model, store=store, run_id=run_id,
             control=self.control,
         )  # fmt: skip
+        self.update_thread = (
+            ThreadPoolExecutor(max_workers=1, thread_name_prefix="sac-updates")
+            if uses_update_thread(config, self.agent.device)
+            else None
+        )
         self.finished_returns: list[float] = []
         self.finished_successes: list[float | None] = []
         self.log_time, self.log_step, self.log_updates = time.monotonic(), 0, 0
@@ -146,9 +153,7 @@ class Trainer:
                 return outcome
             episodes = self.episodes[: self._envs_this_batch()]
             actions = self._actions(episodes)
-            # every env's physics and render first, then each step's bookkeeping and updates: on a GPU the renders
-            # then come in one burst instead of between the update graphs (same results: the actions are chosen)
-            outcomes = [self._simulate(episode, action) for episode, action in zip(episodes, actions, strict=True)]
+            outcomes = self._step_envs_and_update(episodes, actions)
             for episode, action, env_outcome in zip(episodes, actions, outcomes, strict=True):
                 self._record_step(episode, action, env_outcome)
                 self._after_step()
@@ -159,6 +164,28 @@ class Trainer:
         check comes right after it) or the end of the run."""
         cfg, step = self.config, self.counters.step
         return min(len(self.episodes), cfg.total_steps - step, cfg.checkpoint_every - step % cfg.checkpoint_every)
+
+    def _step_envs_and_update(self, episodes: "list[EnvEpisode]", actions: np.ndarray) -> list[tuple]:
+        """Every env's step (physics and render in one burst: on a GPU not between the update graphs) and the SAC
+        updates due for these steps: on the update thread while the envs step (MuJoCo leaves the GIL, so a second
+        core steps them), else right after them. The updates sample the replay as it was before these steps."""
+        count = self._updates_due(len(episodes))
+        pending: Future[None] | None = None
+        if self.update_thread is not None and count:
+            pending = self.update_thread.submit(self._sac_updates, count)
+        try:
+            outcomes = [self._simulate(episode, action) for episode, action in zip(episodes, actions, strict=True)]
+        finally:
+            if pending is not None:
+                pending.result()  # (an update's error is raised here)
+        if pending is None and count:
+            self._sac_updates(count)
+        return outcomes
+
+    def _updates_due(self, steps: int) -> int:
+        """SAC updates of the next `steps` env steps: updates_per_step for each step from the warm-up's end."""
+        first, start = self.counters.step + 1, self.config.initial_random_steps
+        return sum(step >= start for step in range(first, first + steps)) * self.config.updates_per_step
 
     def _after_step(self) -> None:
         cfg, step = self.config, self.counters.step
@@ -172,8 +199,6 @@ class Trainer:
             self.control.event(f"warm-up done at step {step}: policy acting, SAC updates started")
             self.control.set_phase(RunPhase.TRAINING)
             self.training_since = (time.monotonic(), step)
-        if step >= cfg.initial_random_steps:
-            self._sac_updates()
         if step % cfg.eval_every == 0:
             self._evaluate()
         if step % cfg.log_every == 0:
@@ -237,6 +262,8 @@ class Trainer:
             self._evaluate()
 
     def close(self) -> None:
+        if self.update_thread is not None:
+            self.update_thread.shutdown()
         for env in (*(episode.env for episode in self.episodes), *self.eval_envs):
             with contextlib.suppress(Exception):  # closing must not hide the error that ended training
                 env.close()
@@ -332,9 +359,9 @@ class Trainer:
         return self.control.lost()
 
     # ================================================================== SAC
-    def _sac_updates(self) -> None:
-        """Alg. 2 lines 13-16, updates_per_step times (the batches: `learner.updates`, on the host or the device)."""
-        for _ in range(self.config.updates_per_step):
+    def _sac_updates(self, count: int) -> None:
+        """Alg. 2 lines 13-16, `count` times (the batches: `learner.updates`, on the host or the device)."""
+        for _ in range(count):
             self.updates.sac_update()
             self.counters.total_updates += 1
 
@@ -513,6 +540,11 @@ class Trainer:
         self.reward_model.goals = np.stack(images)
         note = f" ({remade} remade at {size}x{size} px from their originals)" if remade else ""
         self.control.event(f"loaded {len(goals)} goal examples{note}")
+
+
+def uses_update_thread(config: TrainConfig, device: torch.device) -> bool:
+    """`update_thread`: auto means on unless on a GPU, where the updates are asynchronous already (graph launches)."""
+    return config.update_thread == "on" or (config.update_thread == "auto" and device.type != "cuda")
 
 
 def env_seed(seed: int, index: int) -> int:

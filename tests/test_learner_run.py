@@ -501,9 +501,10 @@ def test_lockstep_evaluation_runs_the_episodes_a_one_by_one_evaluation_runs(setu
 def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: tuple[Settings, Store, int]) -> None:
     """num_envs=3: every env steps (the policy acting for all in one batch), each env step is one loop step, a
     checkpoint step ends the batch early (the control check comes right after it), each env's generator is in the
-    checkpoint, and the run finishes at exactly total_steps."""
+    checkpoint, and the run finishes at exactly total_steps. Without the update thread a batch's updates follow
+    its env steps (with it they overlap: the next test)."""
     settings, store, goal_set_id = setup
-    config = tiny_config(algorithm="vice_raq", num_envs=3, total_steps=200, checkpoint_every=100)
+    config = tiny_config(algorithm="vice_raq", num_envs=3, total_steps=200, checkpoint_every=100, update_thread="off")
     run_id = create_run(store, goal_set_id, config)
     trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
     steps = [0, 0, 0]
@@ -518,7 +519,7 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
 
         episode.env.step = counted
     sac_updates = trainer._sac_updates
-    trainer._sac_updates = lambda: events.append("U") or sac_updates()
+    trainer._sac_updates = lambda count: events.append("U" * count) or sac_updates(count)
     batches = []
     act_batch = trainer.agent.act_batch
     trainer.agent.act_batch = lambda observations, deterministic=False: (
@@ -558,3 +559,49 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
             other._restore(state)
     finally:
         other.close()
+
+
+def test_the_updates_run_on_the_update_thread_while_the_envs_step(setup: tuple[Settings, Store, int]) -> None:
+    """update_thread auto on the CPU: each batch's SAC updates run on another thread, at the same time as the env
+    steps (an update waits for an env step of its own batch to have begun, which a sequential loop never lets
+    happen), one update per env step after the warm-up, and the run learns to its end as without the thread."""
+    settings, store, goal_set_id = setup
+    config = tiny_config(algorithm="vice_raq", num_envs=2, total_steps=150)
+    run_id = create_run(store, goal_set_id, config)
+    trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
+    assert trainer.update_thread is not None
+    stepping = threading.Event()
+    overlapped, threads = [], set()
+    for episode in trainer.episodes:
+        original = episode.env.step
+
+        def step(action: np.ndarray, original=original):
+            stepping.set()
+            return original(action)
+
+        episode.env.step = step
+    sac_updates = trainer._sac_updates
+
+    def updates(count: int) -> None:
+        threads.add(threading.current_thread().name)
+        overlapped.append(stepping.wait(timeout=5.0))
+        sac_updates(count)
+
+    trainer._sac_updates = updates
+    step_envs_and_update = trainer._step_envs_and_update
+
+    def batch(episodes, actions):  # (each batch starts with no env stepping)
+        stepping.clear()
+        return step_envs_and_update(episodes, actions)
+
+    trainer._step_envs_and_update = batch
+    try:
+        assert trainer.train() == Outcome.FINISHED
+    finally:
+        trainer.close()
+    assert threads and threading.current_thread().name not in threads and all(
+        name.startswith("sac-updates") for name in threads
+    )
+    assert len(overlapped) == 51 and all(overlapped)  # the batches of steps (49, 50) to (149, 150)
+    assert trainer.counters.total_updates == 150 - config.initial_random_steps + 1
+    assert {m.name for m in store.metrics(run_id=run_id)} >= {"critic/loss", "eval/success_rate"}
