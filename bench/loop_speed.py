@@ -183,7 +183,8 @@ def main() -> int:
     print("ms per env step: " + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.seconds.items()))
     where = "on the update thread while the envs step" if trainer.update_thread is not None else "after the envs step"
     print(
-        "of which: " + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.inner_seconds.items())
+        "of which: "
+        + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.inner_seconds.items())
         + f" (the updates {where})"
     )
     other = elapsed - sum(timer.seconds.values())

@@ -599,8 +599,10 @@ def test_the_updates_run_on_the_update_thread_while_the_envs_step(setup: tuple[S
         assert trainer.train() == Outcome.FINISHED
     finally:
         trainer.close()
-    assert threads and threading.current_thread().name not in threads and all(
-        name.startswith("sac-updates") for name in threads
+    assert (
+        threads
+        and threading.current_thread().name not in threads
+        and all(name.startswith("sac-updates") for name in threads)
     )
     assert len(overlapped) == 51 and all(overlapped)  # the batches of steps (49, 50) to (149, 150)
     assert trainer.counters.total_updates == 150 - config.initial_random_steps + 1
