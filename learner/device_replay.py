@@ -41,6 +41,8 @@ class DeviceReplay:
     def sync(self) -> None:
         """Copy the frames and transitions added to the host buffer since the last sync (one batch each)."""
         host = self.host
+        if host.frames_added == self.frames_synced and host.added == self.added_synced:
+            return  # (a batch's updates after its first: no copy, no launch)
         first_frame = max(self.frames_synced, host.frames_added - host.frame_capacity)
         for start in range(first_frame, host.frames_added, SYNC_CHUNK):  # (a resumed run's whole ring: in chunks)
             slots = np.arange(start, min(start + SYNC_CHUNK, host.frames_added)) % host.frame_capacity

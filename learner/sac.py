@@ -31,6 +31,9 @@ from learner.networks import (
     twin_to_ensemble,
 )
 
+FP32_ACTING_MAX = 16
+"""CPU acting batches up to this size run in fp32 (measured on AMX: fp32 faster at 1-8 images, bf16 at 64)."""
+
 
 class SACAgent:
     """Actor, twin critic, target critic, temperature, and their Adam optimizers."""
@@ -103,8 +106,15 @@ class SACAgent:
         return self.act_batch(observation[None], deterministic)[0]
 
     def act_batch(self, observations: np.ndarray, deterministic: bool = False) -> np.ndarray:
-        """uint8 NHWC observations -> one action each, from one forward pass."""
-        action, _ = self.policy(self.images(observations), deterministic)
+        """uint8 NHWC observations -> one action each, from one forward pass. On a CPU a batch of at most
+        FP32_ACTING_MAX images runs in fp32 whatever the precision: bf16 autocast casts every weight per call,
+        which costs more than its faster matmuls save at a few images (1 image: 0.54 ms bf16, 0.30 ms fp32)."""
+        if self.device.type == "cpu" and len(observations) <= FP32_ACTING_MAX:
+            with torch.inference_mode():
+                mean, log_std = self.actor(self._features(to_float(observations, self.device, torch.float32)))
+                action, _ = squashed_gaussian_sample(mean, log_std, deterministic)
+        else:
+            action, _ = self.policy(self.images(observations), deterministic)
         return action.float().cpu().numpy()
 
     # ------------------------------------------------------------------ updates

@@ -234,7 +234,7 @@ class DeviceUpdates:
 
     # ------------------------------------------------------------------ SAC
     def sac_update(self) -> None:
-        self.replay.sync()  # (nothing to copy but the step's new frame and transition after the first)
+        self.replay.sync()  # (the new frames and transitions of the last batch of env steps, at its first update)
         self.metrics.add(self.sac_graph())
 
     def _sac_update_on_device(self) -> dict[str, torch.Tensor]:
