@@ -8,13 +8,17 @@ for `--steps` env steps after the 1,000-step random warm-up, on the default conf
 fields changed, as in bench/learn.py). It times the SAC updates inside that same run (sampling, rewards f_psi(s')
 and the update itself), so both figures share the machine's state:
 
-    E = env steps per second of the loop after the warm-up, everything included;
+    E = env steps per second of the loop from the warm-up's end to the last step, everything included (the run's
+        final checkpoint is not the loop's);
     U = updates per second of the SAC updates alone (the bound: one update per env step);
     R = E / U, the share of the update bound the loop reaches.
 
-On the CPU it also prints the share of the loop's time spent in gradient steps with the classifier's epochs
-counted as well: R counts them as time outside the bound, like evaluation. Take `--steps` as a multiple of the
-epoch (1,000 env steps) so that each epoch's classifier training and evaluation count once per 1,000 steps.
+On the CPU the updates run on the update thread while the envs step, and an epoch's classifier steps run beside
+them on the loop's thread (TrainConfig.update_thread, classifier_beside_updates); the lines before the last say
+how long each took per env step. With the classifier's epochs in the loop itself (`--set
+classifier_beside_updates=false`) it also prints the share of the loop's time spent in gradient steps, the
+classifier's counted as well. Take `--steps` as a multiple of the epoch (1,000 env steps) so that each epoch's
+classifier training and evaluation count once per 1,000 steps.
 
 The last line reads `loop: E env steps/s end to end, U updates/s update-bound, ratio R`. Before it, the loop's
 time outside the updates is split by part (ms per env step).
@@ -145,6 +149,9 @@ def main() -> int:
         timer.wrap(trainer, "_step_envs_and_update", "env steps and SAC updates")
         timer.wrap(trainer, "_sac_updates", "SAC updates", inner=True)
         timer.wrap(trainer, "_end_of_epoch", "classifier epochs")
+        timer.wrap(trainer, "_publish_classifier_epoch", "classifier epochs")
+        if trainer.classifier_beside:
+            timer.wrap(trainer.updates, "classifier_step_with", "classifier steps", inner=True)
         timer.wrap(trainer, "_evaluate", "evaluation")
         timer.wrap(trainer, "_observe", "query scoring")
         timer.wrap(trainer, "_log", "metrics")
@@ -152,6 +159,7 @@ def main() -> int:
             timer.wrap(episode.env, "step", "env step", inner=True)
         timer.wrap(trainer, "_actions", "acting")
         started: list[float] = []
+        ended: list[float] = []
         original_after_step = trainer._after_step
 
         def after_step() -> None:
@@ -159,6 +167,9 @@ def main() -> int:
             if trainer.counters.step == WARM_UP:
                 timer.on = True
                 started.append(time.perf_counter())
+            if trainer.counters.step == config.total_steps:  # (the run's end: its final checkpoint is not the loop)
+                timer.on = False
+                ended.append(time.perf_counter())
 
         trainer._after_step = after_step  # type: ignore[method-assign]
         done = threading.Event()
@@ -167,7 +178,7 @@ def main() -> int:
         update_rate = 0.0
         try:
             trainer.train()
-            elapsed = time.perf_counter() - started[0]
+            elapsed = ended[0] - started[0]
             print(f"updates: {trainer.updates.describe()}")
             if trainer.agent.device.type == "cuda":
                 update_rate = cuda_update_rate(trainer, count=min(args.steps, 1000))
@@ -182,6 +193,8 @@ def main() -> int:
     u = update_rate if args.device.startswith("cuda") else steps * config.updates_per_step / update_seconds
     print("ms per env step: " + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.seconds.items()))
     where = "on the update thread while the envs step" if trainer.update_thread is not None else "after the envs step"
+    if trainer.classifier_beside:
+        where += ", an epoch's classifier steps on the loop's thread beside them"
     print(
         "of which: "
         + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.inner_seconds.items())
@@ -189,7 +202,8 @@ def main() -> int:
     )
     other = elapsed - sum(timer.seconds.values())
     print(f"ms per env step outside the timed parts (replay, bookkeeping, heartbeats): {1000 * other / steps:.1f}")
-    if not args.device.startswith("cuda"):  # (on a GPU the time spent in the updates is not their cost)
+    if not args.device.startswith("cuda") and not trainer.classifier_beside:  # (on a GPU the time spent in the
+        # updates is not their cost; beside the updates the classifier's steps are not time of the loop's own)
         training = update_seconds + timer.seconds["classifier epochs"]
         print(f"share of the loop's time in gradient steps, the classifier's counted too: {training / elapsed:.2f}")
     print(f"loop: {e:.1f} env steps/s end to end, {u:.1f} updates/s update-bound, ratio {e / u:.2f}")

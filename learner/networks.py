@@ -264,9 +264,10 @@ class RewardClassifier(nn.Module):
 
 
 def squashed_gaussian_sample(
-    mean: torch.Tensor, log_std: torch.Tensor, deterministic: bool = False
+    mean: torch.Tensor, log_std: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """a = tanh(u), u ~ N(mean, std) (reparameterised); returns (a, log pi(a|s)) with the tanh correction.
+    """a = tanh(u), u ~ N(mean, std) (reparameterised; the noise from `generator`, default torch's); returns
+    (a, log pi(a|s)) with the tanh correction.
 
     log pi(a|s) = log N(u; mean, std) - sum log(1 - tanh(u)^2), and log(1 - tanh(u)^2) is computed as
     2 (log 2 - u - softplus(-2u)) for numerical stability (SAC paper, appendix C).
@@ -275,7 +276,7 @@ def squashed_gaussian_sample(
         u = mean
         noise = torch.zeros_like(mean)
     else:
-        noise = torch.randn_like(mean)
+        noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
         u = mean + log_std.exp() * noise
     gaussian = (-0.5 * noise.pow(2) - log_std - _HALF_LOG_2PI).sum(-1)
     correction = (2.0 * (_LOG_2 - u - F.softplus(-2.0 * u))).sum(-1)

@@ -10,6 +10,7 @@ precision like the SAC networks (bf16 autocast: convs and hidden layers in bf16;
 loss in fp32, so logits, rewards and query scores are not rounded to bf16).
 """
 
+import copy
 from collections.abc import Callable
 from contextlib import AbstractContextManager
 from typing import Any
@@ -56,8 +57,11 @@ def mixup(
 class RewardModel:
     """f_psi with its optimizer, its positive and negative example sets and a version counter.
 
-    The version increases with every gradient step, so a reward cached with the version that computed it is
-    exact until the next step (the classifier only changes at epoch boundaries).
+    Two copies of f_psi: `trainee`, which the classifier steps train (Adam's parameters), and `net`, the live one
+    that rewards and query scores read; `publish` copies the trainee into the live net and increases the version,
+    so a reward cached with the version that computed it is exact until the next publish. A step publishes at once
+    unless told not to: an epoch trained beside the SAC updates (`learner.updates.ClassifierEpoch`) publishes
+    when its last step is done, so the updates read one f_psi throughout.
     """
 
     def __init__(self, config: TrainConfig, rng: np.random.Generator) -> None:
@@ -67,8 +71,9 @@ class RewardModel:
         self.precision = resolve_precision(config.precision, self.device.type)
         self.net = RewardClassifier(config.image_size, config.conv_filters, config.hidden_dim, config.encoder)
         self.net.to(self.device, memory_format=torch.channels_last)
+        self.trainee = copy.deepcopy(self.net)
         self.opt = torch.optim.Adam(
-            self.net.parameters(), lr=config.classifier_lr, capturable=self.device.type == "cuda"
+            self.trainee.parameters(), lr=config.classifier_lr, capturable=self.device.type == "cuda"
         )  # (capturable: its step counts on the device, so a step can be a CUDA graph)
         self.airl = ALGORITHM_SPECS[config.algorithm].airl
         shape = (0, config.image_size, config.image_size, 3)
@@ -123,19 +128,20 @@ class RewardModel:
         return replay.reward_cache[indices]
 
     # ------------------------------------------------------------------ training
-    def sample_positives(self, count: int) -> np.ndarray:
+    def sample_positives(self, count: int, rng: np.random.Generator | None = None) -> np.ndarray:
         positives = self.positives
-        return positives[self.rng.integers(0, len(positives), size=count)]
+        return positives[(rng or self.rng).integers(0, len(positives), size=count)]
 
-    def sample_negatives(self, count: int) -> np.ndarray:
+    def sample_negatives(self, count: int, rng: np.random.Generator | None = None) -> np.ndarray:
         negatives = self.negatives
-        return negatives[self.rng.integers(0, len(negatives), size=count)]
+        return negatives[(rng or self.rng).integers(0, len(negatives), size=count)]
 
     def discriminator_logits(
         self, images: torch.Tensor, policy: Policy | None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """(logit of D, f_psi, log pi or None). AIRL form: logit D(s, a) = f_psi(s) - log pi(a|s), a ~ pi(.|s)."""
-        f = self.net(images)
+        """(logit of D, f_psi, log pi or None) of the trainee. AIRL form: logit D(s, a) = f_psi(s) - log pi(a|s),
+        a ~ pi(.|s)."""
+        f = self.trainee(images)
         if not self.airl or policy is None:
             return f, f, None
         _, log_pi = policy(images)  # a fresh action for every sample; pi is not trained by this loss
@@ -143,10 +149,12 @@ class RewardModel:
         return f - log_pi, f, log_pi
 
     def update_classifier(
-        self, positives: np.ndarray, negatives: np.ndarray, policy: Policy | None = None, *, accuracy: bool = True
-    ) -> dict[str, float]:
-        """One Adam step of the method's loss on uint8 NHWC positives and negatives; returns metrics (the
-        accuracies need another forward pass of f_psi and pi: `accuracy=False` leaves them out).
+        self, positives: np.ndarray, negatives: np.ndarray, policy: Policy | None = None, *, accuracy: bool = True,
+        rng: np.random.Generator | None = None, publish: bool = True,
+    ) -> dict[str, float]:  # fmt: skip
+        """One Adam step of the method's loss on uint8 NHWC positives and negatives, mixup drawn from `rng` (default
+        the run's); returns metrics (the accuracies need another forward pass of f_psi and pi: `accuracy=False`
+        leaves them out). `publish=False` leaves the live f_psi as it was.
 
         Mixup with the AIRL form: the discriminator is a function of (s, a), so the mixed sample must be one
         (s~, a~) pair; we sample a~ ~ pi(.|s~) for the mixed image and use f_psi(s~) - log pi(a~|s~) as its
@@ -154,12 +162,20 @@ class RewardModel:
         discriminator of Eq. D at any input.) Without mixup this is exactly Alg. 2 lines 9-12.
         """
         images = self.images(np.concatenate([positives, negatives]))
-        loss = self._step(images, len(positives), policy, self.rng)
-        self.version += 1
+        loss = self._step(images, len(positives), policy, rng or self.rng)
         metrics = {"reward/loss": loss.item()}
         if accuracy:
             metrics.update(self._accuracy(images, len(positives), policy))
+        if publish:
+            self.publish()
         return metrics
+
+    @torch.no_grad()
+    def publish(self) -> None:
+        """The trainee's weights into the live f_psi (in place: a captured graph keeps reading them); a new
+        version, so every cached reward is stale."""
+        torch._foreach_copy_(list(self.net.parameters()), list(self.trainee.parameters()))
+        self.version += 1
 
     def step_on_device(self, positives: torch.Tensor, negatives: torch.Tensor, policy: Policy | None) -> torch.Tensor:
         """`update_classifier` on uint8 NHWC device tensors, mixup drawn on the device: no host sync, so a CUDA
@@ -197,8 +213,9 @@ class RewardModel:
 
     # ------------------------------------------------------------------ state
     def state_dict(self) -> dict[str, Any]:
+        """(Taken with the trainee published: the live f_psi is the same.)"""
         return {
-            "net": self.net.state_dict(),
+            "net": self.trainee.state_dict(),
             "opt": self.opt.state_dict(),
             "version": self.version,
             "goals": torch.from_numpy(self.goals.copy()),
@@ -209,6 +226,7 @@ class RewardModel:
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.net.load_state_dict(state["net"])
+        self.trainee.load_state_dict(state["net"])
         self.opt.load_state_dict(state["opt"])
         self.version = int(state["version"]) + 1  # anything cached before the load is stale
         for name in ("goals", "answered_positives", "initial_negatives", "answered_negatives"):

@@ -9,6 +9,7 @@ once on s' per update.
 
 import copy
 import math
+from collections.abc import Callable
 from contextlib import AbstractContextManager
 from typing import Any
 
@@ -100,6 +101,18 @@ class SACAgent:
         with torch.no_grad(), self.autocast():
             mean, log_std = self.actor(self._features(images))
         return squashed_gaussian_sample(mean, log_std, deterministic)
+
+    def frozen_policy(self, generator: torch.Generator) -> Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]:
+        """`policy` of a copy of the actor (and encoder) as they are now, drawing its actions from `generator`:
+        pi for f_psi's AIRL form on one thread while the SAC updates change the networks on another."""
+        actor, encoder = copy.deepcopy(self.actor), copy.deepcopy(self.encoder)
+
+        def policy(images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            with torch.no_grad(), self.autocast():
+                mean, log_std = actor(encoder(images) if encoder is not None else images)
+            return squashed_gaussian_sample(mean, log_std, generator=generator)
+
+        return policy
 
     def act(self, observation: np.ndarray, deterministic: bool = False) -> np.ndarray:
         """One uint8 HWC observation -> an action in [-1, 1]^dim(A)."""

@@ -2,8 +2,10 @@
 
 Per environment step t -> t+1 (Alg. 2): act (uniformly at random for the first initial_random_steps), step the
 env while updates_per_step SAC updates run on the update thread (after the warm-up; on the replay as it was before
-the step), store (s_t, a_t, s_{t+1}), score s_{t+1} as a query candidate; then, at their intervals: read answers,
-train f_psi (epoch ends), ask a query, evaluate, record metrics, checkpoint, heartbeat.
+the step) and, after an epoch's end, one of its classifier steps runs beside them on a copy of f_psi; store
+(s_t, a_t, s_{t+1}), score s_{t+1} as a query candidate; then, at their intervals: publish f_psi (its epoch's
+steps done), read answers, begin f_psi's epoch (epoch ends), ask a query, evaluate, record metrics, checkpoint,
+heartbeat.
 
 Reward timing: the transition (s_t, a_t, s_{t+1}) is rewarded r = f_psi(s_{t+1}) (sparse: success(s_{t+1})),
 so the action that reaches the goal is the one credited; Alg. 2 writes r(s_t) but the state it means is the
@@ -49,7 +51,7 @@ from learner.replay import ReplayBuffer
 from learner.reward import RewardModel
 from learner.run_control import Counters, Outcome, RunControl
 from learner.sac import SACAgent
-from learner.updates import make_updates
+from learner.updates import ClassifierEpoch, HostUpdates, make_updates
 
 __all__ = ["Outcome", "Trainer", "config_for_run", "train_run"]
 CHECKPOINT_VERSION = 1
@@ -127,6 +129,11 @@ class Trainer:
             if uses_update_thread(config, self.agent.device)
             else None
         )
+        # f_psi's epochs beside the SAC updates: with the update thread, on the host pipeline
+        self.classifier_beside = config.classifier_beside_updates and (
+            self.update_thread is not None and isinstance(self.updates, HostUpdates)
+        )
+        self.classifier_epoch: ClassifierEpoch | None = None
         self.finished_returns: list[float] = []
         self.finished_successes: list[float | None] = []
         self.log_time, self.log_step, self.log_updates = time.monotonic(), 0, 0
@@ -175,6 +182,8 @@ class Trainer:
             pending = self.update_thread.submit(self._sac_updates, count)
         try:
             outcomes = [self._simulate(episode, action) for episode, action in zip(episodes, actions, strict=True)]
+            if self.classifier_epoch is not None:  # one classifier step per env step, beside the updates
+                self.classifier_epoch.run(len(episodes))
         finally:
             if pending is not None:
                 pending.result()  # (an update's error is raised here)
@@ -189,6 +198,7 @@ class Trainer:
 
     def _after_step(self) -> None:
         cfg, step = self.config, self.counters.step
+        self._publish_classifier_epoch(finish=False)
         if self.queries is not None and (step % cfg.log_every == 0 or step % cfg.epoch_steps == 0):
             self.queries.read_answers()
         if step % cfg.epoch_steps == 0:
@@ -375,7 +385,10 @@ class Trainer:
         if self.spec.negatives == "pool" and len(model.initial_negatives) == 0:
             model.initial_negatives = self._first_epoch_negatives()
         if not self.spec.train_once:
-            self._train_classifier(cfg.classifier_steps)
+            if self.classifier_beside:
+                self._begin_classifier_epoch()
+            else:
+                self._train_classifier(cfg.classifier_steps)
             return
         if counters.naive_trained:
             return
@@ -385,6 +398,27 @@ class Trainer:
             self.control.event("naive classifier trained")
         else:  # not marked trained: the checkpoint says so, and the resumed learner trains it again
             self.control.event("naive classifier training interrupted; it is redone after the resume")
+
+    def _begin_classifier_epoch(self) -> None:
+        """This epoch's classifier steps, to run beside the next env steps' SAC updates (one still running is
+        finished and published first)."""
+        self._publish_classifier_epoch(finish=True)
+        if self.config.classifier_steps:
+            assert isinstance(self.updates, HostUpdates)
+            seed = int(self.rng.integers(2**63))
+            self.classifier_epoch = ClassifierEpoch(self.updates, steps=self.config.classifier_steps, seed=seed)
+
+    def _publish_classifier_epoch(self, *, finish: bool) -> None:
+        """The epoch's f_psi live once its steps are done (`finish`: its remaining steps now, before a checkpoint
+        or the next epoch), its metrics recorded at this step."""
+        epoch = self.classifier_epoch
+        if epoch is None or not (epoch.done or finish):
+            return
+        epoch.run(epoch.steps)
+        self.classifier_epoch = None
+        assert self.reward_model is not None
+        self.reward_model.publish()
+        self._record_classifier_metrics(epoch.metrics)
 
     def _first_epoch_negatives(self) -> np.ndarray:
         """Every observation of the first epoch (s and s' of its transitions), at most raq_initial_negatives."""
@@ -406,8 +440,15 @@ class Trainer:
             metrics = self.updates.classifier_step(accuracy=i == steps - 1)
             if i % 50 == 49:
                 self.control.tick()
-        if not metrics:
-            return True
+        self._record_classifier_metrics(metrics)
+        return True
+
+    def _record_classifier_metrics(self, metrics: dict[str, float]) -> None:
+        """An epoch's last classifier step's metrics with f_psi's view of the newest observations and of the
+        answers; the query candidates rescored by the new f_psi."""
+        model = self.reward_model
+        if not metrics or model is None:
+            return
         recent = self.replay.frames_since(self.replay.frames_added - 256)
         metrics["reward/mean_logit_recent"] = float(model.logits(recent).mean())
         metrics["reward/positives"] = float(len(model.goals) + len(model.answered_positives))
@@ -416,7 +457,6 @@ class Trainer:
         self.store.record_metrics(run_id=self.run_id, step=self.counters.step, values=metrics)
         if self.queries is not None:
             self.queries.rescore()
-        return True
 
     # ================================================================== evaluation and metrics
     def _loop_phase(self) -> str:
@@ -463,6 +503,7 @@ class Trainer:
         if not self.control.holds_run():  # taken over meanwhile: never overwrite the new holder's checkpoint
             self.control.beat_refused = True
             return
+        self._publish_classifier_epoch(finish=True)  # (a checkpoint holds one f_psi)
         if self.queries is not None:  # (a checkpoint keeps scored candidates, not the observations still waiting)
             self.queries.score_pending()
         started = time.monotonic()

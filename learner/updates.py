@@ -19,7 +19,7 @@ from learner.algorithms import AlgorithmSpec
 from learner.config import TrainConfig
 from learner.device_replay import DeviceReplay
 from learner.replay import ReplayBuffer, shift_pad
-from learner.reward import RewardModel
+from learner.reward import Policy, RewardModel
 from learner.sac import SACAgent
 
 GRAPH_WARMUP_CALLS = 3
@@ -135,24 +135,33 @@ class HostUpdates:
         return self.reward_model.rewards(self.replay, indices)
 
     def classifier_step(self, *, accuracy: bool) -> dict[str, float]:
-        """One classifier step (Alg. 2 lines 9-11) on the method's positives and negatives; its metrics."""
+        """One classifier step (Alg. 2 lines 9-11) on the method's positives and negatives, published at once;
+        its metrics."""
+        policy = self.agent.policy if self.spec.airl else None
+        return self.classifier_step_with(self.rng, policy, accuracy=accuracy, publish=True)
+
+    def classifier_step_with(
+        self, rng: np.random.Generator, policy: Policy | None, *, accuracy: bool, publish: bool
+    ) -> dict[str, float]:
+        """A classifier step drawing from `rng` (batches, mixup) with `policy` as the AIRL form's pi."""
         model = self.reward_model
         assert model is not None
-        positives = model.sample_positives(self.config.classifier_batch_size)
-        policy = self.agent.policy if self.spec.airl else None
-        return model.update_classifier(positives, self.negatives(), policy, accuracy=accuracy)
+        positives = model.sample_positives(self.config.classifier_batch_size, rng)
+        return model.update_classifier(
+            positives, self.negatives(rng), policy, accuracy=accuracy, rng=rng, publish=publish
+        )
 
-    def negatives(self) -> np.ndarray:
+    def negatives(self, rng: np.random.Generator | None = None) -> np.ndarray:
         """A classifier step's negatives: uniform replay samples (VICE methods; the first no_answer_share of them
         from the observations answered no, once there is one), or the pool (raq, naive)."""
-        model, size = self.reward_model, self.config.classifier_batch_size
+        model, size, rng = self.reward_model, self.config.classifier_batch_size, rng or self.rng
         assert model is not None
         if self.spec.negatives == "pool":
-            return model.sample_negatives(size)
-        negatives = self.replay.sample_next_frames(self.rng, size)
+            return model.sample_negatives(size, rng)
+        negatives = self.replay.sample_next_frames(rng, size)
         answered = no_answer_count(self.config)
         if answered and len(model.answered_negatives):
-            picks = self.rng.integers(0, len(model.answered_negatives), size=answered)
+            picks = rng.integers(0, len(model.answered_negatives), size=answered)
             negatives[:answered] = model.answered_negatives[picks]
         return negatives
 
@@ -268,7 +277,7 @@ class DeviceUpdates:
         if replaced and self.classifier_graph.graph is not None:  # the old storage is in the graph: capture anew
             self.classifier_graph = GraphedCall(self.classifier_step_fn, self.device, enabled=self.graphs)
         self.classifier_graph()
-        model.version += 1  # (a graph replay runs no Python)
+        model.publish()  # (the version too: a graph replay runs no Python)
         return {}
 
     def _classifier_step_on_device(self) -> torch.Tensor:
@@ -301,6 +310,32 @@ class DeviceUpdates:
                 graph.failure_reported = True
                 notes.append(f"the {name} could not be captured as a CUDA graph and runs eagerly: {graph.failure}")
         return notes
+
+
+class ClassifierEpoch:
+    """An epoch's classifier steps (Alg. 2 lines 9-11) run a few at a time on the loop's thread while the update
+    thread runs the SAC updates (`Trainer._step_envs_and_update`), so a second core trains f_psi: the steps train
+    the trainee and the live f_psi (rewards, query scores) stays as it was until the last step is done and the
+    trainer publishes it. Nothing it uses is changed or drawn from by the update thread meanwhile: its own
+    generators (batches, mixup, the AIRL form's actions), a copy of pi as of the epoch's end (Alg. 2 trains f_psi
+    with that pi too), the replay only read (the loop adds to it between the batches, outside the overlap)."""
+
+    def __init__(self, updates: HostUpdates, *, steps: int, seed: int) -> None:
+        self.updates, self.steps, self.done_steps = updates, steps, 0
+        self.rng = np.random.default_rng(seed)
+        generator = torch.Generator(device=updates.agent.device).manual_seed(seed)
+        self.policy = updates.agent.frozen_policy(generator) if updates.spec.airl else None
+        self.metrics: dict[str, float] = {}
+
+    @property
+    def done(self) -> bool:
+        return self.done_steps >= self.steps
+
+    def run(self, count: int) -> None:
+        """Up to `count` more steps; the last one also measures the accuracies."""
+        for _ in range(min(count, self.steps - self.done_steps)):
+            self.done_steps += 1
+            self.metrics = self.updates.classifier_step_with(self.rng, self.policy, accuracy=self.done, publish=False)
 
 
 def make_updates(

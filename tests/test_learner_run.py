@@ -607,3 +607,49 @@ def test_the_updates_run_on_the_update_thread_while_the_envs_step(setup: tuple[S
     assert len(overlapped) == 51 and all(overlapped)  # the batches of steps (49, 50) to (149, 150)
     assert trainer.counters.total_updates == 150 - config.initial_random_steps + 1
     assert {m.name for m in store.metrics(run_id=run_id)} >= {"critic/loss", "eval/success_rate"}
+
+
+def test_an_epochs_classifier_steps_run_beside_the_updates_and_publish_when_done(
+    setup: tuple[Settings, Store, int],
+) -> None:
+    """With the update thread (CPU default): the epoch ending at step 50 begins f_psi's 4 steps, one per later env
+    step on the loop's thread while that step's SAC update runs; the updates read one unchanged f_psi meanwhile;
+    f_psi is published (its metrics recorded) at step 54. At the checkpoint step 100 the epoch's steps run at once
+    (a checkpoint holds one f_psi)."""
+    settings, store, goal_set_id = setup
+    config = tiny_config(algorithm="vice_raq", total_steps=150, classifier_steps=4)
+    run_id = create_run(store, goal_set_id, config)
+    trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
+    assert trainer.classifier_beside
+    model = trainer.reward_model
+    meeting = threading.Barrier(2, timeout=5.0)  # an update and a classifier step of one env step, both running
+    versions: dict[int, int] = {}  # env step -> the f_psi version its SAC update read
+    beside: list[int] = []
+    sac_update = trainer.updates.sac_update
+
+    def update() -> None:
+        step = trainer.counters.step + 1  # (the loop counts the step after the overlap)
+        versions[step] = model.version
+        if 51 <= step <= 54:
+            meeting.wait()
+        sac_update()
+
+    trainer.updates.sac_update = update
+    classifier_step_with = trainer.updates.classifier_step_with
+
+    def classifier_step(*args, **kwargs):
+        step = trainer.counters.step + 1
+        if 51 <= step <= 54 and threading.current_thread() is threading.main_thread():
+            meeting.wait()  # (a loop that ran them one after the other would break the barrier here)
+            beside.append(step)
+        return classifier_step_with(*args, **kwargs)
+
+    trainer.updates.classifier_step_with = classifier_step
+    try:
+        assert trainer.train() == Outcome.FINISHED
+    finally:
+        trainer.close()
+    loss_steps = sorted(m.step for m in store.metrics(run_id=run_id) if m.name == "reward/loss")
+    assert loss_steps == [54, 100, 150]  # 50 + 4; the checkpoint's at once; the last at the run's end
+    assert beside == [51, 52, 53, 54]  # the epoch of step 50 beside the updates of steps 51-54
+    assert versions[51] == versions[52] == versions[53] == versions[54] < versions[55]

@@ -337,6 +337,43 @@ def test_reward_cache_is_exact_per_classifier_version() -> None:
     np.testing.assert_allclose(model.rewards(replay, indices), model.logits(frames[indices + 1]), rtol=1e-5)
 
 
+def test_an_unpublished_classifier_step_leaves_the_live_f_psi_and_its_rewards_as_they_were() -> None:
+    """Steps with publish=False train the trainee only: rewards and logits (the live f_psi) and the version stay;
+    publish makes the live f_psi the trainee's, and the cached rewards follow."""
+    rng = np.random.default_rng(0)
+    model, replay, frames = raq_model_and_replay(rng, capacity=50, transitions=20)
+    indices = np.arange(20)
+    before, version = model.rewards(replay, indices).copy(), model.version
+    for _ in range(3):
+        model.update_classifier(goal_like(rng, 8), replay_like(rng, 8), publish=False)
+    np.testing.assert_array_equal(model.rewards(replay, indices), before)
+    assert model.version == version
+    trained = model.trainee(model.images(frames[1:21])).float().detach().numpy()
+    model.publish()
+    assert model.version == version + 1
+    after = model.rewards(replay, indices)
+    assert not np.allclose(after, before)
+    np.testing.assert_allclose(after, trained, rtol=1e-5, atol=1e-6)
+
+
+def test_a_frozen_policy_keeps_its_weights_and_draws_from_its_own_generator() -> None:
+    """SACAgent.frozen_policy: the actor as it was (a later change to the agent does not reach it), its actions
+    drawn from the given generator only (the same seed, the same actions; torch's generator untouched)."""
+    agent = SACAgent(tiny(), 2)
+    images = agent.images(np.random.default_rng(0).integers(0, 256, (4, SIZE, SIZE, 3), dtype=np.uint8))
+    frozen = agent.frozen_policy(torch.Generator().manual_seed(5))
+    again = agent.frozen_policy(torch.Generator().manual_seed(5))
+    with torch.no_grad():
+        for parameter in agent.actor.parameters():
+            parameter.add_(1.0)
+    state = torch.get_rng_state()
+    (a1, log_pi1), (a2, log_pi2) = frozen(images), again(images)
+    assert torch.equal(torch.get_rng_state(), state)
+    assert torch.equal(a1, a2) and torch.equal(log_pi1, log_pi2)
+    changed, _ = agent.policy(images, deterministic=True)
+    assert not torch.allclose(changed.float(), a1.float(), atol=1e-2)
+
+
 def test_reward_cache_is_not_stale_after_a_ring_wrap_or_a_checkpoint_round_trip() -> None:
     rng = np.random.default_rng(0)
     model, replay, frames = raq_model_and_replay(rng, capacity=5, transitions=5)
