@@ -179,7 +179,7 @@ class RewardModel:
 
     def step_on_device(self, positives: torch.Tensor, negatives: torch.Tensor, policy: Policy | None) -> torch.Tensor:
         """`update_classifier` on uint8 NHWC device tensors, mixup drawn on the device: no host sync, so a CUDA
-        graph can hold it (the graph's replays do not run Python: the caller counts `version`). Returns the loss."""
+        graph can hold it (the graph's replays do not run Python: the caller publishes it). Returns the loss."""
         return self._step(self.images(torch.cat([positives, negatives])), len(positives), policy, None)
 
     def _step(
