@@ -13,12 +13,12 @@ and the update itself), so both figures share the machine's state:
     U = updates per second of the SAC updates alone (the bound: one update per env step);
     R = E / U, the share of the update bound the loop reaches.
 
-On the CPU the updates run on the update thread while the envs step, and an epoch's classifier steps run beside
-them on the loop's thread (TrainConfig.update_thread, classifier_beside_updates); the lines before the last say
-how long each took per env step. With the classifier's epochs in the loop itself (`--set
-classifier_beside_updates=false`) it also prints the share of the loop's time spent in gradient steps, the
-classifier's counted as well. Take `--steps` as a multiple of the epoch (1,000 env steps) so that each epoch's
-classifier training and evaluation count once per 1,000 steps.
+On the CPU the updates run on the update thread while the envs step (TrainConfig.update_thread); with `--set
+classifier_beside_updates=true` an epoch's classifier steps run beside them on the loop's thread. The lines
+before the last say how long each took per env step. With the classifier's epochs in the loop itself (the
+default) it also prints the share of the loop's time spent in gradient steps, the classifier's counted as well.
+Take `--steps` as a multiple of the epoch (1,000 env steps) so that each epoch's classifier training and
+evaluation count once per 1,000 steps.
 
 The last line reads `loop: E env steps/s end to end, U updates/s update-bound, ratio R`. Before it, the loop's
 time outside the updates is split by part (ms per env step).

@@ -122,9 +122,9 @@ class TrainConfig:
     """Batches sampled and rewarded on the host (numpy, cached f_psi) or device (CUDA graphs); auto: GPU."""
     update_thread: Literal["auto", "on", "off"] = "auto"
     """SAC updates on a second thread while the envs step (MuJoCo leaves the GIL); auto: on unless on a GPU."""
-    classifier_beside_updates: bool = True
-    """With the update thread, host pipeline: an epoch's classifier steps run one per env step beside the SAC
-    updates on a copy of f_psi, published when done (rewards lag classifier_steps env steps); False: at once."""
+    classifier_beside_updates: bool = False
+    """With the update thread, host pipeline: an epoch's classifier steps one per env step beside the SAC updates on
+    a copy of f_psi, published when done (rewards lag classifier_steps env steps; R 0.91, not 0.86); False: at once."""
 
     # --- reward classifier f_psi
     classifier_lr: float = 3e-4

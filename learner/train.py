@@ -2,10 +2,10 @@
 
 Per environment step t -> t+1 (Alg. 2): act (uniformly at random for the first initial_random_steps), step the
 env while updates_per_step SAC updates run on the update thread (after the warm-up; on the replay as it was before
-the step) and, after an epoch's end, one of its classifier steps runs beside them on a copy of f_psi; store
-(s_t, a_t, s_{t+1}), score s_{t+1} as a query candidate; then, at their intervals: publish f_psi (its epoch's
-steps done), read answers, begin f_psi's epoch (epoch ends), ask a query, evaluate, record metrics, checkpoint,
-heartbeat.
+the step), store (s_t, a_t, s_{t+1}), score s_{t+1} as a query candidate; then, at their intervals: read answers,
+train f_psi (epoch ends), ask a query, evaluate, record metrics, checkpoint, heartbeat. With
+classifier_beside_updates an epoch's f_psi steps run one per env step beside the updates instead, on a copy of
+f_psi published when they are done.
 
 Reward timing: the transition (s_t, a_t, s_{t+1}) is rewarded r = f_psi(s_{t+1}) (sparse: success(s_{t+1})),
 so the action that reaches the goal is the one credited; Alg. 2 writes r(s_t) but the state it means is the

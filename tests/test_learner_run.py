@@ -612,12 +612,12 @@ def test_the_updates_run_on_the_update_thread_while_the_envs_step(setup: tuple[S
 def test_an_epochs_classifier_steps_run_beside_the_updates_and_publish_when_done(
     setup: tuple[Settings, Store, int],
 ) -> None:
-    """With the update thread (CPU default): the epoch ending at step 50 begins f_psi's 4 steps, one per later env
-    step on the loop's thread while that step's SAC update runs; the updates read one unchanged f_psi meanwhile;
-    f_psi is published (its metrics recorded) at step 54. At the checkpoint step 100 the epoch's steps run at once
-    (a checkpoint holds one f_psi)."""
+    """classifier_beside_updates with the update thread (the CPU's default): the epoch ending at step 50 begins
+    f_psi's 4 steps, one per later env step on the loop's thread while that step's SAC update runs; the updates
+    read one unchanged f_psi meanwhile; f_psi is published (its metrics recorded) at step 54. At the checkpoint
+    step 100 the epoch's steps run at once (a checkpoint holds one f_psi)."""
     settings, store, goal_set_id = setup
-    config = tiny_config(algorithm="vice_raq", total_steps=150, classifier_steps=4)
+    config = tiny_config(algorithm="vice_raq", total_steps=150, classifier_steps=4, classifier_beside_updates=True)
     run_id = create_run(store, goal_set_id, config)
     trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
     assert trainer.classifier_beside
