@@ -36,6 +36,17 @@ FP32_ACTING_MAX = 16
 """CPU acting batches up to this size run in fp32 (measured on AMX: fp32 faster at 1-8 images, bf16 at 64)."""
 
 
+def sample_policy(
+    actor: torch.nn.Module, encoder: torch.nn.Module | None, images: torch.Tensor,
+    context: AbstractContextManager[Any], deterministic: bool = False, generator: torch.Generator | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    """(a, log pi(a|s)) of `actor` on float images (through the shared `encoder` when there is one), the networks
+    run without gradients inside `context` (autocast, or inference mode), the action drawn from `generator`."""
+    with torch.no_grad(), context:
+        mean, log_std = actor(encoder(images) if encoder is not None else images)
+    return squashed_gaussian_sample(mean, log_std, deterministic, generator)
+
+
 class SACAgent:
     """Actor, twin critic, target critic, temperature, and their Adam optimizers."""
 
@@ -98,21 +109,13 @@ class SACAgent:
 
     def policy(self, images: torch.Tensor, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
         """(a, log pi(a|s)) for float images, no gradients (acting, evaluation, VICE's action sampling)."""
-        with torch.no_grad(), self.autocast():
-            mean, log_std = self.actor(self._features(images))
-        return squashed_gaussian_sample(mean, log_std, deterministic)
+        return sample_policy(self.actor, self.encoder, images, self.autocast(), deterministic)
 
     def frozen_policy(self, generator: torch.Generator) -> Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]:
         """`policy` of a copy of the actor (and encoder) as they are now, drawing its actions from `generator`:
         pi for f_psi's AIRL form on one thread while the SAC updates change the networks on another."""
         actor, encoder = copy.deepcopy(self.actor), copy.deepcopy(self.encoder)
-
-        def policy(images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-            with torch.no_grad(), self.autocast():
-                mean, log_std = actor(encoder(images) if encoder is not None else images)
-            return squashed_gaussian_sample(mean, log_std, generator=generator)
-
-        return policy
+        return lambda images: sample_policy(actor, encoder, images, self.autocast(), generator=generator)
 
     def act(self, observation: np.ndarray, deterministic: bool = False) -> np.ndarray:
         """One uint8 HWC observation -> an action in [-1, 1]^dim(A)."""
@@ -123,9 +126,8 @@ class SACAgent:
         FP32_ACTING_MAX images runs in fp32 whatever the precision: bf16 autocast casts every weight per call,
         which costs more than its faster matmuls save at a few images (1 image: 0.54 ms bf16, 0.30 ms fp32)."""
         if self.device.type == "cpu" and len(observations) <= FP32_ACTING_MAX:
-            with torch.inference_mode():
-                mean, log_std = self.actor(self._features(to_float(observations, self.device, torch.float32)))
-                action, _ = squashed_gaussian_sample(mean, log_std, deterministic)
+            images = to_float(observations, self.device, torch.float32)
+            action, _ = sample_policy(self.actor, self.encoder, images, torch.inference_mode(), deterministic)
         else:
             action, _ = self.policy(self.images(observations), deterministic)
         return action.float().cpu().numpy()
