@@ -13,10 +13,12 @@ and the update itself), so both figures share the machine's state:
     U = updates per second of the SAC updates alone (the bound: one update per env step);
     R = E / U, the share of the update bound the loop reaches.
 
-On the CPU the updates run on the update thread while the envs step (TrainConfig.update_thread); with `--set
-classifier_beside_updates=true` an epoch's classifier steps run beside them on the loop's thread. The lines
-before the last say how long each took per env step. With the classifier's epochs in the loop itself (the
-default) it also prints the share of the loop's time spent in gradient steps, the classifier's counted as well.
+On the CPU the updates run on the update thread while the loop's thread acts, steps the envs and scores query
+candidates (TrainConfig.update_thread), and f_psi's epoch runs there while the evaluation runs; with `--set
+classifier_beside_updates=true` an epoch's classifier steps run beside the updates on the loop's thread instead.
+The lines before the last say how long each part took per env step: the loop thread's parts, then parts timed
+wherever they run (inside those), and the seconds of gradient steps (SAC's and f_psi's) per second of the loop,
+which can pass 1 when they run on both threads at once.
 Take `--steps` as a multiple of the epoch (1,000 env steps) so that each epoch's classifier training and
 evaluation count once per 1,000 steps.
 
@@ -146,18 +148,22 @@ def main() -> int:
             checkpoint_file=Path(tmp) / "checkpoint.pt",
         )  # fmt: skip
         timer = PartTimer()
-        timer.wrap(trainer, "_step_envs_and_update", "env steps and SAC updates")
-        timer.wrap(trainer, "_sac_updates", "SAC updates", inner=True)
-        timer.wrap(trainer, "_end_of_epoch", "classifier epochs")
-        timer.wrap(trainer, "_publish_classifier_epoch", "classifier epochs")
-        if trainer.classifier_beside:
-            timer.wrap(trainer.updates, "classifier_step_with", "classifier steps", inner=True)
-        timer.wrap(trainer, "_evaluate", "evaluation")
-        timer.wrap(trainer, "_observe", "query scoring")
+        timer.wrap(trainer, "_step_envs_and_update", "acting, env steps and SAC updates")
+        timer.wrap(trainer, "_end_of_epoch_and_evaluation", "epoch ends and evaluations")
+        timer.wrap(trainer, "_publish_classifier_epoch", "classifier epochs published")
+        timer.wrap(trainer, "_observe", "query candidates")
+        timer.wrap(trainer.queries, "ask", "queries asked")
         timer.wrap(trainer, "_log", "metrics")
+        timer.wrap(trainer, "_actions", "acting", inner=True)
         for episode in trainer.episodes:
             timer.wrap(episode.env, "step", "env step", inner=True)
-        timer.wrap(trainer, "_actions", "acting")
+        timer.wrap(trainer.queries, "score_pending", "query scoring", inner=True)
+        timer.wrap(trainer, "_sac_updates", "SAC updates", inner=True)
+        if trainer.classifier_beside:
+            timer.wrap(trainer.updates, "classifier_step_with", "classifier steps", inner=True)
+        else:
+            timer.wrap(trainer, "_classifier_steps", "classifier steps", inner=True)
+        timer.wrap(trainer.evaluator, "run_episodes", "evaluation episodes", inner=True)
         started: list[float] = []
         ended: list[float] = []
         original_after_step = trainer._after_step
@@ -192,20 +198,25 @@ def main() -> int:
     e = steps / elapsed
     u = update_rate if args.device.startswith("cuda") else steps * config.updates_per_step / update_seconds
     print("ms per env step: " + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.seconds.items()))
-    where = "on the update thread while the envs step" if trainer.update_thread is not None else "after the envs step"
-    if trainer.classifier_beside:
-        where += ", an epoch's classifier steps on the loop's thread beside them"
+    if trainer.update_thread is None:
+        where = "the updates after the envs step, f_psi's epochs at once"
+    else:
+        where = "the updates on the update thread while the loop's thread acts, steps the envs and scores; "
+        where += (
+            "an epoch's classifier steps on the loop's thread beside them"
+            if trainer.classifier_beside
+            else "f_psi's epoch on the update thread while the evaluation runs"
+        )
     print(
-        "of which: "
+        "timed wherever they run, ms per env step: "
         + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.inner_seconds.items())
-        + f" (the updates {where})"
+        + f" ({where})"
     )
     other = elapsed - sum(timer.seconds.values())
     print(f"ms per env step outside the timed parts (replay, bookkeeping, heartbeats): {1000 * other / steps:.1f}")
-    if not args.device.startswith("cuda") and not trainer.classifier_beside:  # (on a GPU the time spent in the
-        # updates is not their cost; beside the updates the classifier's steps are not time of the loop's own)
-        training = update_seconds + timer.seconds["classifier epochs"]
-        print(f"share of the loop's time in gradient steps, the classifier's counted too: {training / elapsed:.2f}")
+    if not args.device.startswith("cuda"):  # (on a GPU the time spent in the updates is not their cost)
+        training = update_seconds + timer.inner_seconds["classifier steps"]
+        print(f"gradient steps (SAC and f_psi) per second of the loop's time: {training / elapsed:.2f}")
     print(f"loop: {e:.1f} env steps/s end to end, {u:.1f} updates/s update-bound, ratio {e / u:.2f}")
     return 0
 

@@ -56,16 +56,29 @@ class Evaluator:
 
     def evaluate(self, step: int) -> bool:
         """Evaluate at env step `step` and record it; False when an interrupt cut it short (nothing recorded)."""
+        episodes = self.run_episodes(step)
+        if episodes is None:
+            return False
+        self.record(step, episodes)
+        return True
+
+    def run_episodes(self, step: int) -> list[Episode] | None:
+        """The evaluation's episodes, `EVAL_LOCKSTEP` at a time; None when an interrupt cut them short. They read
+        the policy only (f_psi is read by `record`, so it may train meanwhile on another thread)."""
         cfg = self.config
-        if cfg.eval_episodes == 0:
-            return True
         episodes: list[Episode] = []
         for first in range(0, cfg.eval_episodes, len(self.envs)):
             count = min(len(self.envs), cfg.eval_episodes - first)
             episodes += self._episodes(step, first, count)
             if self.control.interrupted:
-                return False
+                return None
             self.control.tick()
+        return episodes
+
+    def record(self, step: int, episodes: list[Episode]) -> None:
+        """The evaluation's metrics (eval/classifier_return with the current f_psi), its rollout and its event."""
+        if not episodes:  # (eval_episodes = 0)
+            return
         returns = [episode.total for episode in episodes]
         successes = [episode.success for episode in episodes]
         frames = episodes[0].frames
@@ -85,7 +98,6 @@ class Evaluator:
         )  # fmt: skip
         rate = f", success rate {values['eval/success_rate']:.2f}" if "eval/success_rate" in values else ""
         self.control.event(f"evaluation at step {step}: return {values['eval/return']:.2f}{rate}")
-        return True
 
     def _episodes(self, step: int, first: int, count: int) -> list[Episode]:
         """Episodes first .. first + count - 1 on as many envs, acting on all that are running in one batch."""

@@ -60,7 +60,7 @@ class QueryChannel:
     ) -> None:  # fmt: skip
         """Offer a new observation as a candidate; `render()` gives the display view of this same state and is
         called only if the observation is kept. Scored now, or with `deferred` (render works later: it renders from
-        a state snapshot) with the next `query_score_batch` observations in one batch."""
+        a state snapshot) in a batch once `query_score_batch` wait (`score_full_batch`)."""
         if not self.budget_left:
             return
         pending = Pending(image, render, self.counters.step, jsonable(info), success)
@@ -68,6 +68,10 @@ class QueryChannel:
             self._offer([pending], self.reward_model.logits(image[None]))
             return
         self.pending.append(pending)
+
+    def score_full_batch(self) -> None:
+        """Score the waiting observations once there are `query_score_batch` of them. The loop calls it while the
+        SAC updates run on the update thread: they only read f_psi, as scoring does."""
         if len(self.pending) >= self.config.query_score_batch:
             self.score_pending()
 

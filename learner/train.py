@@ -2,10 +2,15 @@
 
 Per environment step t -> t+1 (Alg. 2): act (uniformly at random for the first initial_random_steps), step the
 env while updates_per_step SAC updates run on the update thread (after the warm-up; on the replay as it was before
-the step), store (s_t, a_t, s_{t+1}), score s_{t+1} as a query candidate; then, at their intervals: read answers,
-train f_psi (epoch ends), ask a query, evaluate, record metrics, checkpoint, heartbeat. With
-classifier_beside_updates an epoch's f_psi steps run one per env step beside the updates instead, on a copy of
-f_psi published when they are done.
+the step), store (s_t, a_t, s_{t+1}), offer s_{t+1} as a query candidate; then, at their intervals: read answers,
+train f_psi (epoch ends), evaluate, ask a query, record metrics, checkpoint, heartbeat.
+
+With the update thread (the CPU's default) the loop's thread does beside each batch's updates what does not need
+them done: acting (on a copy of pi synced before the updates start: the same pi the step would act with), the env
+steps, scoring the query candidates waiting for a batch (f_psi is not the updates' to change). At an epoch's end
+f_psi trains on the update thread while the evaluation's episodes run on the loop's thread (they read pi only).
+With classifier_beside_updates an epoch's f_psi steps run one per env step beside the updates instead, on a copy
+of f_psi published when they are done.
 
 Reward timing: the transition (s_t, a_t, s_{t+1}) is rewarded r = f_psi(s_{t+1}) (sparse: success(s_{t+1})),
 so the action that reaches the goal is the one credited; Alg. 2 writes r(s_t) but the state it means is the
@@ -134,6 +139,13 @@ class Trainer:
             self.update_thread is not None and isinstance(self.updates, HostUpdates)
         )
         self.classifier_epoch: ClassifierEpoch | None = None
+        # the epoch's f_psi training on the update thread while the loop's thread evaluates (host pipeline)
+        self.classifier_beside_evaluation = (
+            self.update_thread is not None and isinstance(self.updates, HostUpdates) and not self.classifier_beside
+        )
+        # acting draws from its own generator; with the update thread it acts on a copy of pi (synced per batch)
+        self.acting_generator = torch.Generator(device=self.agent.device).manual_seed(config.seed)
+        self.acting_copy = self.agent.policy_copy(self.acting_generator) if self.update_thread is not None else None
         self.finished_returns: list[float] = []
         self.finished_successes: list[float | None] = []
         self.log_time, self.log_step, self.log_updates = time.monotonic(), 0, 0
@@ -159,8 +171,7 @@ class Trainer:
             if outcome is not None:
                 return outcome
             episodes = self.episodes[: self._envs_this_batch()]
-            actions = self._actions(episodes)
-            outcomes = self._step_envs_and_update(episodes, actions)
+            actions, outcomes = self._step_envs_and_update(episodes)
             for episode, action, env_outcome in zip(episodes, actions, outcomes, strict=True):
                 self._record_step(episode, action, env_outcome)
                 self._after_step()
@@ -172,24 +183,36 @@ class Trainer:
         cfg, step = self.config, self.counters.step
         return min(len(self.episodes), cfg.total_steps - step, cfg.checkpoint_every - step % cfg.checkpoint_every)
 
-    def _step_envs_and_update(self, episodes: "list[EnvEpisode]", actions: np.ndarray) -> list[tuple]:
-        """Every env's step (physics and render in one burst: on a GPU not between the update graphs) and the SAC
-        updates due for these steps: on the update thread while the envs step (MuJoCo leaves the GIL, so a second
-        core steps them), else right after them. The updates sample the replay as it was before these steps."""
+    def _step_envs_and_update(self, episodes: "list[EnvEpisode]") -> tuple[np.ndarray, list[tuple]]:
+        """The envs' actions and steps (physics and render in one burst: on a GPU not between the update graphs)
+        and the SAC updates due for these steps: on the update thread while the loop's thread acts, steps the envs
+        and scores waiting query candidates (MuJoCo leaves the GIL, so a second core does that), else right after
+        the steps. The updates sample the replay as it was before these steps."""
         count = self._updates_due(len(episodes))
+        beside = self.update_thread is not None and count > 0
+        if self.acting_copy is not None:
+            self.acting_copy.sync()  # pi as the last batch's updates left it (none is running now)
+        # the warm-up's uniform actions come from the run's generator, which the updates draw from: before them
+        warm_up = self.counters.step < self.config.initial_random_steps
+        actions = self._actions(episodes) if warm_up or not beside else None
         pending: Future[None] | None = None
-        if self.update_thread is not None and count:
+        if beside:
+            assert self.update_thread is not None
             pending = self.update_thread.submit(self._sac_updates, count)
         try:
+            if actions is None:
+                actions = self._actions(episodes)
             outcomes = [self._simulate(episode, action) for episode, action in zip(episodes, actions, strict=True)]
             if self.classifier_epoch is not None:  # one classifier step per env step, beside the updates
                 self.classifier_epoch.run(len(episodes))
+            if self.queries is not None:
+                self.queries.score_full_batch()
         finally:
             if pending is not None:
                 pending.result()  # (an update's error is raised here)
         if pending is None and count:
             self._sac_updates(count)
-        return outcomes
+        return actions, outcomes
 
     def _updates_due(self, steps: int) -> int:
         """SAC updates of the next `steps` env steps: updates_per_step for each step from the warm-up's end."""
@@ -201,16 +224,15 @@ class Trainer:
         self._publish_classifier_epoch(finish=False)
         if self.queries is not None and (step % cfg.log_every == 0 or step % cfg.epoch_steps == 0):
             self.queries.read_answers()
-        if step % cfg.epoch_steps == 0:
-            self._end_of_epoch()
-        if self.queries is not None and step % cfg.query_every == 0:
-            self.queries.ask()
         if step == cfg.initial_random_steps:
             self.control.event(f"warm-up done at step {step}: policy acting, SAC updates started")
             self.control.set_phase(RunPhase.TRAINING)
             self.training_since = (time.monotonic(), step)
-        if step % cfg.eval_every == 0:
-            self._evaluate()
+        epoch_end, evaluation = step % cfg.epoch_steps == 0, step % cfg.eval_every == 0
+        if epoch_end or evaluation:
+            self._end_of_epoch_and_evaluation(epoch_end=epoch_end, evaluation=evaluation)
+        if self.queries is not None and step % cfg.query_every == 0:
+            self.queries.ask()
         if step % cfg.log_every == 0:
             self._log()
         if step % cfg.checkpoint_every == 0 and step < cfg.total_steps and not self.control.interrupted:
@@ -287,7 +309,11 @@ class Trainer:
             actions[index] = self.rng.uniform(-1.0, 1.0, self.action_dim)
         acting = [index for index in range(len(episodes)) if index not in random]
         if acting:
-            actions[acting] = self.agent.act_batch(np.stack([episodes[index].obs for index in acting]))
+            observations = np.stack([episodes[index].obs for index in acting])
+            if self.acting_copy is not None:  # (beside the updates: the copy of pi)
+                actions[acting] = self.acting_copy.act_batch(observations)
+            else:
+                actions[acting] = self.agent.act_batch(observations, generator=self.acting_generator)
         return actions
 
     def _simulate(self, episode: "EnvEpisode", action: np.ndarray) -> tuple:
@@ -376,10 +402,20 @@ class Trainer:
             self.counters.total_updates += 1
 
     # ================================================================== reward classifier
-    def _end_of_epoch(self) -> None:
+    def _end_of_epoch_and_evaluation(self, *, epoch_end: bool, evaluation: bool) -> None:
+        """The epoch's end and the evaluation due at this step. When both are, f_psi's steps run on the update
+        thread (if there is one) while the evaluation's episodes run on the loop's thread; the evaluation is
+        recorded after both, with the new f_psi, as when one follows the other."""
+        training = self._end_of_epoch(beside_evaluation=evaluation) if epoch_end else None
+        if evaluation:
+            self._evaluate(training)
+
+    def _end_of_epoch(self, *, beside_evaluation: bool = False) -> "Future[dict[str, float] | None] | None":
+        """f_psi's epoch: at once, beside the next env steps' updates (classifier_beside_updates) or, when an
+        evaluation follows and the update thread is there, on that thread (the future of its metrics)."""
         model, cfg, counters = self.reward_model, self.config, self.counters
         if model is None:
-            return
+            return None
         if self.queries is not None:  # the observations waiting for a batch are scored by the f_psi of their time
             self.queries.score_pending()
         if self.spec.negatives == "pool" and len(model.initial_negatives) == 0:
@@ -387,17 +423,21 @@ class Trainer:
         if not self.spec.train_once:
             if self.classifier_beside:
                 self._begin_classifier_epoch()
+            elif beside_evaluation and self.classifier_beside_evaluation and cfg.classifier_steps:
+                assert self.update_thread is not None
+                return self.update_thread.submit(self._classifier_steps, cfg.classifier_steps, beside=True)
             else:
                 self._train_classifier(cfg.classifier_steps)
-            return
+            return None
         if counters.naive_trained:
-            return
+            return None
         self.control.event(f"training the naive classifier once: {cfg.naive_classifier_steps} steps, then frozen")
         if self._train_classifier(cfg.naive_classifier_steps):
             counters.naive_trained = True
             self.control.event("naive classifier trained")
         else:  # not marked trained: the checkpoint says so, and the resumed learner trains it again
             self.control.event("naive classifier training interrupted; it is redone after the resume")
+        return None
 
     def _begin_classifier_epoch(self) -> None:
         """This epoch's classifier steps, to run beside the next env steps' SAC updates (one still running is
@@ -417,6 +457,8 @@ class Trainer:
         epoch.run(epoch.steps)
         self.classifier_epoch = None
         assert self.reward_model is not None
+        if self.queries is not None:  # the observations waiting for a batch are scored by the f_psi of their time
+            self.queries.score_pending()
         self.reward_model.publish()
         self._record_classifier_metrics(epoch.metrics)
 
@@ -429,19 +471,34 @@ class Trainer:
         return frames.copy()
 
     def _train_classifier(self, steps: int) -> bool:
-        """`steps` classifier steps (Alg. 2 lines 9-11); False when an interrupt cut them short."""
-        model = self.reward_model
-        assert model is not None
+        """`steps` classifier steps (Alg. 2 lines 9-11), their metrics recorded; False when an interrupt cut them
+        short."""
+        metrics = self._classifier_steps(steps)
+        if metrics is None:
+            return False
+        self._record_classifier_metrics(metrics)
+        return True
+
+    def _classifier_steps(self, steps: int, *, beside: bool = False) -> dict[str, float] | None:
+        """`steps` classifier steps and the last one's metrics (its accuracies too: a second forward pass, once);
+        None when an interrupt cut them short. `beside` (on the update thread, beside an evaluation): each step
+        leaves the live f_psi as it was, for `_classifier_trained` to publish, and the loop's thread beats."""
         metrics: dict[str, float] = {}
         for i in range(steps):
             if self.control.interrupted:
-                return False
-            # the accuracies (a second forward pass) only for the step whose metrics are recorded
-            metrics = self.updates.classifier_step(accuracy=i == steps - 1)
-            if i % 50 == 49:
+                return None
+            metrics = self.updates.classifier_step(accuracy=i == steps - 1, publish=not beside)
+            if i % 50 == 49 and not beside:
                 self.control.tick()
-        self._record_classifier_metrics(metrics)
-        return True
+        return metrics
+
+    def _classifier_trained(self, metrics: dict[str, float] | None) -> None:
+        """After f_psi's steps on the update thread: the trained f_psi live, its metrics recorded (unless an
+        interrupt cut the steps short)."""
+        assert self.reward_model is not None
+        self.reward_model.publish()
+        if metrics is not None:
+            self._record_classifier_metrics(metrics)
 
     def _record_classifier_metrics(self, metrics: dict[str, float]) -> None:
         """An epoch's last classifier step's metrics with f_psi's view of the newest observations and of the
@@ -462,14 +519,20 @@ class Trainer:
     def _loop_phase(self) -> str:
         return RunPhase.WARM_UP if self.counters.step < self.config.initial_random_steps else RunPhase.TRAINING
 
-    def _evaluate(self) -> None:
+    def _evaluate(self, training: "Future[dict[str, float] | None] | None" = None) -> None:
+        """Evaluate at this step. `training`: f_psi's steps running on the update thread meanwhile, finished before
+        the evaluation is recorded (eval/classifier_return reads the new f_psi)."""
         step = self.counters.step
         self.control.set_phase(RunPhase.EVALUATING)
         try:
-            if self.evaluator.evaluate(step):
-                self.counters.evaluated_step = step
+            episodes = self.evaluator.run_episodes(step)
         finally:
+            if training is not None:
+                self._classifier_trained(training.result())
             self.control.set_phase(self._loop_phase())
+        if episodes is not None:
+            self.evaluator.record(step, episodes)
+            self.counters.evaluated_step = step
 
     def _log(self) -> None:
         now, step, counters = time.monotonic(), self.counters.step, self.counters
@@ -526,6 +589,7 @@ class Trainer:
             "rng": {
                 "numpy": self.rng.bit_generator.state,
                 "torch": torch.get_rng_state(),
+                "acting": self.acting_generator.get_state(),
                 "cuda": _cuda_rng_states(self.agent.device),
                 "env": _env_rng_state(self.env),
                 "envs": [_env_rng_state(episode.env) for episode in self.episodes],
@@ -550,6 +614,8 @@ class Trainer:
         self.replay.load_state_dict(state["replay"])
         self.rng.bit_generator.state = state["rng"]["numpy"]
         torch.set_rng_state(state["rng"]["torch"])
+        if "acting" in state["rng"]:  # (checkpoints from before acting had its own generator: it starts afresh)
+            self.acting_generator.set_state(state["rng"]["acting"])
         cuda = state["rng"].get("cuda")
         # (another host may have another number of GPUs: then each keeps its own streams)
         if cuda is not None and torch.cuda.is_available() and len(cuda) == torch.cuda.device_count():

@@ -134,11 +134,11 @@ class HostUpdates:
             return self.replay.success[indices].astype(np.float32)
         return self.reward_model.rewards(self.replay, indices)
 
-    def classifier_step(self, *, accuracy: bool) -> dict[str, float]:
-        """One classifier step (Alg. 2 lines 9-11) on the method's positives and negatives, published at once;
-        its metrics."""
+    def classifier_step(self, *, accuracy: bool, publish: bool = True) -> dict[str, float]:
+        """One classifier step (Alg. 2 lines 9-11) on the method's positives and negatives, published at once
+        unless told not to; its metrics."""
         policy = self.agent.policy if self.spec.airl else None
-        return self.classifier_step_with(self.rng, policy, accuracy=accuracy, publish=True)
+        return self.classifier_step_with(self.rng, policy, accuracy=accuracy, publish=publish)
 
     def classifier_step_with(
         self, rng: np.random.Generator, policy: Policy | None, *, accuracy: bool, publish: bool
@@ -261,13 +261,13 @@ class DeviceUpdates:
         return metrics
 
     # ------------------------------------------------------------------ f_psi
-    def classifier_step(self, *, accuracy: bool) -> dict[str, float]:
+    def classifier_step(self, *, accuracy: bool, publish: bool = True) -> dict[str, float]:
         """As HostUpdates.classifier_step; the step whose accuracies are read runs on the host's batches (once an
         epoch), every other one on the device as a graph, its loss left unread."""
         model = self.reward_model
         assert model is not None
         if accuracy:
-            return self.host.classifier_step(accuracy=True)
+            return self.host.classifier_step(accuracy=True, publish=publish)
         self.replay.sync()
         replaced = self.positives.sync(model.positives)
         if self.spec.negatives == "pool":
@@ -277,7 +277,8 @@ class DeviceUpdates:
         if replaced and self.classifier_graph.graph is not None:  # the old storage is in the graph: capture anew
             self.classifier_graph = GraphedCall(self.classifier_step_fn, self.device, enabled=self.graphs)
         self.classifier_graph()
-        model.publish()  # (the version too: a graph replay runs no Python)
+        if publish:
+            model.publish()  # (the version too: a graph replay runs no Python)
         return {}
 
     def _classifier_step_on_device(self) -> torch.Tensor:
@@ -324,7 +325,7 @@ class ClassifierEpoch:
         self.updates, self.steps, self.done_steps = updates, steps, 0
         self.rng = np.random.default_rng(seed)
         generator = torch.Generator(device=updates.agent.device).manual_seed(seed)
-        self.policy = updates.agent.frozen_policy(generator) if updates.spec.airl else None
+        self.policy = updates.agent.policy_copy(generator) if updates.spec.airl else None
         self.metrics: dict[str, float] = {}
 
     @property

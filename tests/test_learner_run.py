@@ -522,8 +522,8 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
     trainer._sac_updates = lambda count: events.append("U" * count) or sac_updates(count)
     batches = []
     act_batch = trainer.agent.act_batch
-    trainer.agent.act_batch = lambda observations, deterministic=False: (
-        batches.append(len(observations)) or act_batch(observations, deterministic)
+    trainer.agent.act_batch = lambda observations, deterministic=False, generator=None: (
+        batches.append(len(observations)) or act_batch(observations, deterministic, generator)
     )
     try:
         assert trainer.train() == Outcome.FINISHED
@@ -561,38 +561,67 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
         other.close()
 
 
-def test_the_updates_run_on_the_update_thread_while_the_envs_step(setup: tuple[Settings, Store, int]) -> None:
-    """update_thread auto on the CPU: each batch's SAC updates run on another thread, at the same time as the env
-    steps (an update waits for an env step of its own batch to have begun, which a sequential loop never lets
-    happen), one update per env step after the warm-up, and the run learns to its end as without the thread."""
+def test_the_updates_run_on_the_update_thread_while_the_loop_acts_steps_and_scores(
+    setup: tuple[Settings, Store, int],
+) -> None:
+    """update_thread auto on the CPU: each batch's SAC updates run on another thread while the loop's thread acts
+    (on a copy of pi synced before the updates: the actions are those of pi as the last batch left it), steps the
+    envs and scores the query candidates waiting for a batch; an update waits for the loop to reach that scoring
+    in its own batch, which a sequential loop never lets happen. One update per env step after the warm-up, and
+    the run learns to its end as without the thread."""
     settings, store, goal_set_id = setup
-    config = tiny_config(algorithm="vice_raq", num_envs=2, total_steps=150)
+    config = tiny_config(algorithm="vice_raq", num_envs=2, total_steps=150, query_score_batch=8)
     run_id = create_run(store, goal_set_id, config)
     trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
-    assert trainer.update_thread is not None
-    stepping = threading.Event()
-    overlapped, threads = [], set()
+    assert trainer.update_thread is not None and trainer.acting_copy is not None
+    reached = threading.Event()  # the loop's thread has acted, stepped and come to the scoring of this batch
+    overlapped, threads, order, scored_while_updating, same_as_live = [], set(), [], [], []
+    updating = threading.Event()
     for episode in trainer.episodes:
         original = episode.env.step
 
         def step(action: np.ndarray, original=original):
-            stepping.set()
+            order.append("S")
             return original(action)
 
         episode.env.step = step
+    acting_copy = trainer.acting_copy
+    act_batch = acting_copy.act_batch
+
+    def act(observations: np.ndarray, deterministic: bool = False) -> np.ndarray:
+        order.append("A")
+        # (this batch's updates wait for the scoring below, so the live pi is still as the last batch left it)
+        live = trainer.agent.act_batch(observations, deterministic=True)
+        same_as_live.append(np.array_equal(act_batch(observations, deterministic=True), live))
+        return act_batch(observations, deterministic)
+
+    acting_copy.act_batch = act
+    score_full_batch = trainer.queries.score_full_batch
+
+    def score() -> None:
+        order.append("Q")
+        pending = len(trainer.queries.pending)
+        reached.set()
+        score_full_batch()
+        if pending >= config.query_score_batch and trainer.counters.step >= config.initial_random_steps:
+            scored_while_updating.append(updating.is_set())
+
+    trainer.queries.score_full_batch = score
     sac_updates = trainer._sac_updates
 
     def updates(count: int) -> None:
+        updating.set()
         threads.add(threading.current_thread().name)
-        overlapped.append(stepping.wait(timeout=5.0))
+        overlapped.append(reached.wait(timeout=5.0))
         sac_updates(count)
+        updating.clear()
 
     trainer._sac_updates = updates
     step_envs_and_update = trainer._step_envs_and_update
 
-    def batch(episodes, actions):  # (each batch starts with no env stepping)
-        stepping.clear()
-        return step_envs_and_update(episodes, actions)
+    def batch(episodes):  # (each batch starts with the loop's thread not yet at the scoring)
+        reached.clear()
+        return step_envs_and_update(episodes)
 
     trainer._step_envs_and_update = batch
     try:
@@ -605,8 +634,68 @@ def test_the_updates_run_on_the_update_thread_while_the_envs_step(setup: tuple[S
         and all(name.startswith("sac-updates") for name in threads)
     )
     assert len(overlapped) == 51 and all(overlapped)  # the batches of steps (49, 50) to (149, 150)
+    assert "".join(order).count("ASSQ") == 50  # per batch after the warm-up: act, step both envs, score
+    assert len(same_as_live) == 50 and all(same_as_live) and acting_copy.actor is not trainer.agent.actor
+    assert len(scored_while_updating) >= 10 and all(scored_while_updating)
     assert trainer.counters.total_updates == 150 - config.initial_random_steps + 1
     assert {m.name for m in store.metrics(run_id=run_id)} >= {"critic/loss", "eval/success_rate"}
+
+
+def test_an_epochs_classifier_trains_on_the_update_thread_while_the_evaluation_runs(
+    setup: tuple[Settings, Store, int],
+) -> None:
+    """With the update thread, at a step that ends an epoch and evaluates (100 here), f_psi's steps run on the
+    update thread while the evaluation's episodes run on the loop's thread (each waits for the other to have begun,
+    which in a sequential loop times out); f_psi is published once after its steps, and the
+    evaluation is recorded after that with the new f_psi (eval/classifier_return)."""
+    settings, store, goal_set_id = setup
+    config = tiny_config(algorithm="vice_raq", total_steps=100, classifier_steps=3, eval_episodes=1)
+    run_id = create_run(store, goal_set_id, config)
+    trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
+    assert trainer.classifier_beside_evaluation
+    model = trainer.reward_model
+    classifier_began, evaluation_began = threading.Event(), threading.Event()
+    met: list[tuple[str, bool]] = []  # (thread, whether the other had begun) at step 100
+    classifier_step = trainer.updates.classifier_step
+
+    def step_of_classifier(**kwargs):
+        if trainer.counters.step == 100:
+            classifier_began.set()  # (a sequential loop has no evaluation running: the wait times out)
+            met.append((threading.current_thread().name, evaluation_began.wait(timeout=5.0)))
+        return classifier_step(**kwargs)
+
+    trainer.updates.classifier_step = step_of_classifier
+    eval_step = trainer.eval_envs[0].step
+
+    def step_of_evaluation(action: np.ndarray):
+        if trainer.counters.step == 100:
+            evaluation_began.set()
+            met.append((threading.current_thread().name, classifier_began.wait(timeout=5.0)))
+        return eval_step(action)
+
+    trainer.eval_envs[0].step = step_of_evaluation
+    run_episodes = trainer.evaluator.run_episodes
+    versions = []
+    trainer.evaluator.run_episodes = lambda step: versions.append(model.version) or run_episodes(step)
+    record = trainer.evaluator.record
+    recorded = []
+
+    def record_with_version(step, episodes):
+        recorded.append((model.version, sum(float(model.logits(np.stack(e.next_obs)).sum()) for e in episodes)))
+        return record(step, episodes)
+
+    trainer.evaluator.record = record_with_version
+    try:
+        assert trainer.train() == Outcome.FINISHED
+    finally:
+        trainer.close()
+    classifier_threads = {name for name, _ in met if name != threading.current_thread().name}
+    assert len(met) == 3 + 25 and all(other_began for _, other_began in met)  # 3 f_psi steps, 25 env steps
+    assert len(classifier_threads) == 1 and classifier_threads.pop().startswith("sac-updates")
+    assert recorded[-1][0] == versions[-1] + 1  # published once, after its 3 steps and before the record
+    metrics = {(m.name, m.step): m.value for m in store.metrics(run_id=run_id)}
+    assert metrics[("eval/classifier_return", 100)] == pytest.approx(recorded[-1][1], rel=1e-5)
+    assert ("reward/loss", 100) in metrics and ("reward/loss", 50) in metrics
 
 
 def test_an_epochs_classifier_steps_run_beside_the_updates_and_publish_when_done(

@@ -356,13 +356,15 @@ def test_an_unpublished_classifier_step_leaves_the_live_f_psi_and_its_rewards_as
     np.testing.assert_allclose(after, trained, rtol=1e-5, atol=1e-6)
 
 
-def test_a_frozen_policy_keeps_its_weights_and_draws_from_its_own_generator() -> None:
-    """SACAgent.frozen_policy: the actor as it was (a later change to the agent does not reach it), its actions
-    drawn from the given generator only (the same seed, the same actions; torch's generator untouched)."""
+def test_a_policy_copy_keeps_its_weights_until_synced_and_draws_from_its_own_generator() -> None:
+    """SACAgent.policy_copy: the actor as it was (a later change to the agent does not reach it until `sync`), its
+    actions drawn from the given generator only (the same seed, the same actions; torch's generator untouched)."""
     agent = SACAgent(tiny(), 2)
-    images = agent.images(np.random.default_rng(0).integers(0, 256, (4, SIZE, SIZE, 3), dtype=np.uint8))
-    frozen = agent.frozen_policy(torch.Generator().manual_seed(5))
-    again = agent.frozen_policy(torch.Generator().manual_seed(5))
+    observations = np.random.default_rng(0).integers(0, 256, (4, SIZE, SIZE, 3), dtype=np.uint8)
+    images = agent.images(observations)
+    frozen = agent.policy_copy(torch.Generator().manual_seed(5))
+    again = agent.policy_copy(torch.Generator().manual_seed(5))
+    before = agent.act_batch(observations, deterministic=True)
     with torch.no_grad():
         for parameter in agent.actor.parameters():
             parameter.add_(1.0)
@@ -372,6 +374,11 @@ def test_a_frozen_policy_keeps_its_weights_and_draws_from_its_own_generator() ->
     assert torch.equal(a1, a2) and torch.equal(log_pi1, log_pi2)
     changed, _ = agent.policy(images, deterministic=True)
     assert not torch.allclose(changed.float(), a1.float(), atol=1e-2)
+    np.testing.assert_array_equal(frozen.act_batch(observations, deterministic=True), before)
+    frozen.sync()
+    np.testing.assert_array_equal(
+        frozen.act_batch(observations, deterministic=True), agent.act_batch(observations, deterministic=True)
+    )
 
 
 def test_reward_cache_is_not_stale_after_a_ring_wrap_or_a_checkpoint_round_trip() -> None:
