@@ -15,7 +15,7 @@
 #   bash bench/gpu_check.sh lease SECONDS    one lease's whole check within SECONDS (default 540, the pip install
 #                                            counted): VICE-RAQ on the pusher alone on the machine (4 envs, seed 0,
 #                                            stops at 90% or after 4 minutes: issue 12's 3-minute target), then
-#                                            loop_speed at 4 envs without and with the update thread, then learning
+#                                            loop_speed at 4 envs stepped in turn and in worker processes, then learning
 #                                            runs side by side for the time left: the pusher (PUSHER_SEEDS, default
 #                                            "1 2") and the door with its task settings (DOOR_SEEDS, default "0 1");
 #                                            all comes back in 5 files (learner_speed: the speed phase)
@@ -76,8 +76,8 @@ if [ "$phase" = lease ]; then
   deadline=$((SECONDS + ${2:-540}))  # (bash's SECONDS counts from the script's start, the install included)
   learn_run pusher 0 4  # alone: the pusher's time to 90% with the machine to itself
   wait
-  for thread in off on; do
-    timeout 75 python3 bench/loop_speed.py --device "$device" --steps 3000 --envs 4 --set update_thread=$thread 2>&1 \
+  for processes in false true; do  # the 4 envs one after another, then each in a worker process, stepped at once
+    timeout 75 python3 bench/loop_speed.py --device "$device" --steps 3000 --envs 4 --set env_processes=$processes 2>&1 \
       | tee -a "$OUT/loop_speed.txt"
   done
   minutes=$(python3 -c "print(max(1.0, ($deadline - $SECONDS - 50) / 60))")  # (50 s to stop, checkpoint and pack)

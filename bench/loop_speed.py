@@ -155,8 +155,7 @@ def main() -> int:
         timer.wrap(trainer.queries, "ask", "queries asked")
         timer.wrap(trainer, "_log", "metrics")
         timer.wrap(trainer, "_actions", "acting", inner=True)
-        for episode in trainer.episodes:
-            timer.wrap(episode.env, "step", "env step", inner=True)
+        timer.wrap(trainer, "_simulate", "env steps", inner=True)
         timer.wrap(trainer.queries, "score_pending", "query scoring", inner=True)
         timer.wrap(trainer, "_sac_updates", "SAC updates", inner=True)
         if trainer.classifier_beside:

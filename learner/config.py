@@ -94,6 +94,9 @@ class TrainConfig:
     """Uniform random actions before the policy acts (and before updates start)."""
     num_envs: int = 1
     """Training envs in lockstep: the policy acts for all in one batch; each env step is one loop step."""
+    env_processes: bool = False
+    """Each training env in a worker process of its own, the batch's envs stepped at once on as many cores (for
+    num_envs > 1 where cores are spare, as on a GPU host); False: one after another on the loop's thread."""
     updates_per_step: int = 1
     """Gradient steps per environment step."""
     replay_capacity: int = 200_000

@@ -39,6 +39,7 @@ from learner.checkpoint import checkpoint_url as checkpoint_location
 from learner.checkpoint import load_checkpoint, save_checkpoint
 from learner.checkpoint_location import POLICY_FILENAME, sibling
 from learner.config import TrainConfig
+from learner.env_workers import ProcessEnv, process_envs
 from learner.envs import (
     check_action_space,
     display_image,
@@ -102,10 +103,12 @@ class Trainer:
         torch.manual_seed(config.seed)
         self.rng = np.random.default_rng(config.seed)
         size = config.image_size
-        self.episodes = [
-            EnvEpisode(make_env(config.env_id, image_size=size, display_size=config.display_size))
-            for _ in range(config.num_envs)
-        ]
+        if config.env_processes:
+            envs = process_envs(config.num_envs, config.env_id, image_size=size, display_size=config.display_size)
+        else:
+            envs = [make_env(config.env_id, image_size=size, display_size=config.display_size)
+                    for _ in range(config.num_envs)]  # fmt: skip
+        self.episodes = [EnvEpisode(env) for env in envs]
         self.env = self.episodes[0].env
         self.eval_envs = [  # their renders are the rollout's frames only: drawn at that size (2 ms, not 5)
             make_env(config.env_id, image_size=size, display_size=config.rollout_size)
@@ -202,7 +205,7 @@ class Trainer:
         try:
             if actions is None:
                 actions = self._actions(episodes)
-            outcomes = [self._simulate(episode, action) for episode, action in zip(episodes, actions, strict=True)]
+            outcomes = self._simulate(episodes, actions)
             if self.classifier_epoch is not None:  # one classifier step per env step, beside the updates
                 self.classifier_epoch.run(len(episodes))
             if self.queries is not None:
@@ -316,9 +319,15 @@ class Trainer:
                 actions[acting] = self.agent.act_batch(observations, generator=self.acting_generator)
         return actions
 
-    def _simulate(self, episode: "EnvEpisode", action: np.ndarray) -> tuple:
-        """The env's step: its physics and its camera's render (gymnasium's 5-tuple)."""
-        return episode.env.step(scale_action(action, self.action_space))
+    def _simulate(self, episodes: "list[EnvEpisode]", actions: np.ndarray) -> list[tuple]:
+        """Every env's step, its physics and its camera's render (gymnasium's 5-tuple). Envs in worker processes
+        (env_processes) are all sent their actions first, so they step at once."""
+        scaled = [scale_action(action, self.action_space) for action in actions]
+        if not self.config.env_processes:
+            return [episode.env.step(action) for episode, action in zip(episodes, scaled, strict=True)]
+        for episode, action in zip(episodes, scaled, strict=True):
+            episode.env.step_async(action)
+        return [episode.env.step_wait() for episode in episodes]
 
     def _record_step(self, episode: "EnvEpisode", action: np.ndarray, env_outcome: tuple) -> None:
         """One env step of the loop: its transition into the replay, the observation offered to the queries, the
@@ -351,7 +360,9 @@ class Trainer:
         episode.length, episode.total = 0, 0.0
         self._observe(episode.env, episode.obs, info, success_of(info))
 
-    def _observe(self, env: gymnasium.Env, image: np.ndarray, info: dict[str, Any], success: float | None) -> None:
+    def _observe(
+        self, env: gymnasium.Env | ProcessEnv, image: np.ndarray, info: dict[str, Any], success: float | None
+    ) -> None:
         """Offer a new observation to the query channel; its display render is of this same state: rendered now
         if it is kept, or later from a snapshot of the state when the env can take one (then scored in a batch)."""
         if self.queries is None or not self.queries.budget_left:
@@ -614,7 +625,8 @@ class Trainer:
         self.replay.load_state_dict(state["replay"])
         self.rng.bit_generator.state = state["rng"]["numpy"]
         torch.set_rng_state(state["rng"]["torch"])
-        if "acting" in state["rng"]:  # (checkpoints from before acting had its own generator: it starts afresh)
+        # (checkpoints from before acting had a generator of its own: it starts afresh)
+        if "acting" in state["rng"]:
             self.acting_generator.set_state(state["rng"]["acting"])
         cuda = state["rng"].get("cuda")
         # (another host may have another number of GPUs: then each keeps its own streams)
@@ -666,7 +678,7 @@ def env_seed(seed: int, index: int) -> int:
 class EnvEpisode:
     """A training env and its current episode: the last observation, its replay slot, length and reward sum."""
 
-    env: gymnasium.Env
+    env: gymnasium.Env | ProcessEnv
     obs: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 3), dtype=np.uint8))
     obs_slot: int = 0
     length: int = 0
