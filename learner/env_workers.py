@@ -22,6 +22,8 @@ from typing import Any
 import gymnasium
 import numpy as np
 
+from learner.envs import make_env
+
 START_SECONDS = 120.0
 """How long a worker may take to import its modules and make its env."""
 
@@ -66,8 +68,6 @@ COMMANDS = {
 
 def serve(connection: Connection, env_id: str, image_size: int, display_size: int) -> None:
     """A worker process: make the env, then answer (command, args) with (True, result) or (False, traceback)."""
-    from learner.envs import make_env  # noqa: PLC0415 - imported in the worker, after spawn
-
     try:
         env = make_env(env_id, image_size=image_size, display_size=display_size)
     except Exception:
@@ -174,8 +174,14 @@ class ProcessEnv:
         return self.process.pid
 
     def call(self, command: str, *args: Any) -> Any:
-        self.connection.send((command, args))
+        self._send(command, *args)
         return self._result()
+
+    def _send(self, command: str, *args: Any) -> None:
+        try:
+            self.connection.send((command, args))
+        except OSError as error:  # (a broken pipe: the worker is gone)
+            raise WorkerError(f"the env worker (pid {self.pid}) went away: {error!r}") from error
 
     def _result(self, timeout: float | None = None) -> Any:
         try:
@@ -189,7 +195,7 @@ class ProcessEnv:
         return value
 
     def step_async(self, action: np.ndarray) -> None:
-        self.connection.send(("step", (action,)))
+        self._send("step", action)
 
     def step_wait(self) -> tuple:
         outcome, self.snapshot = self._result()

@@ -18,7 +18,7 @@ __all__ = ["setup"]  # (the fixture, shared with the loop's tests)
 
 def test_an_env_in_a_worker_process_is_the_env_in_this_one() -> None:
     """Reset, steps, render, snapshots and the generator's state give what the env made here gives, from another
-    process; an error in the worker is raised here with its traceback."""
+    process; an error in the worker is raised here with its traceback, and a worker that died is reported."""
     here = make_env(ENV, image_size=16, display_size=32)
     [there] = process_envs(1, ENV, image_size=16, display_size=32)
     try:
@@ -48,6 +48,10 @@ def test_an_env_in_a_worker_process_is_the_env_in_this_one() -> None:
         with pytest.raises(WorkerError, match="Traceback"):
             there.unwrapped.restore_snapshot("not a snapshot")
         np.testing.assert_array_equal(there.step(actions[0])[0], here.step(actions[0])[0])  # (still serving)
+        there.process.kill()  # a worker that dies says so at the next call, not a hang
+        there.process.join()
+        with pytest.raises(WorkerError, match="went away"):
+            there.step(actions[0])
     finally:
         here.close()
         there.close()
