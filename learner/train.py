@@ -137,15 +137,12 @@ class Trainer:
             if uses_update_thread(config, self.agent.device)
             else None
         )
-        # f_psi's epochs beside the SAC updates: with the update thread, on the host pipeline
-        self.classifier_beside = config.classifier_beside_updates and (
-            self.update_thread is not None and isinstance(self.updates, HostUpdates)
-        )
+        # with the update thread, on the host pipeline, f_psi's epochs run beside the SAC updates (one step per env
+        # step) or, by default, on the update thread while the loop's thread evaluates
+        host_threads = self.update_thread is not None and isinstance(self.updates, HostUpdates)
+        self.classifier_beside = host_threads and config.classifier_beside_updates
+        self.classifier_beside_evaluation = host_threads and not config.classifier_beside_updates
         self.classifier_epoch: ClassifierEpoch | None = None
-        # the epoch's f_psi training on the update thread while the loop's thread evaluates (host pipeline)
-        self.classifier_beside_evaluation = (
-            self.update_thread is not None and isinstance(self.updates, HostUpdates) and not self.classifier_beside
-        )
         # acting draws from its own generator; with the update thread it acts on a copy of pi (synced per batch)
         self.acting_generator = torch.Generator(device=self.agent.device).manual_seed(config.seed)
         self.acting_copy = self.agent.policy_copy(self.acting_generator) if self.update_thread is not None else None
