@@ -6,7 +6,9 @@ yes) is the answer, flipped for a `--noise` fraction of queries (seeded), after 
 
 import argparse
 import random
+import signal
 import sys
+import threading
 import time
 from typing import Any
 
@@ -97,6 +99,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _stop_on_signals() -> None:
+    """SIGINT and SIGTERM stop the oracle (as Ctrl-C does), also where it was started with SIGINT ignored, as a
+    background job's children are: a script that started it can stop it."""
+
+    def interrupt(signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    if threading.current_thread() is threading.main_thread():  # (signal handlers can be set there only)
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, interrupt)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if not 0.0 <= args.noise <= 1.0:
@@ -112,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     with httpx.Client(base_url=args.url.rstrip("/"), headers=headers, timeout=30.0) as client:
         if not args.once:
             scope = f"run {args.run}" if args.run is not None else "all runs"
+            _stop_on_signals()
             _say(f"answering queries of {scope} at {args.url} (noise {args.noise}, delay {args.delay}s); Ctrl-C stops")
         try:
             while True:

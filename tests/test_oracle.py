@@ -2,6 +2,9 @@
 
 import io
 import random
+import signal
+import subprocess
+import sys
 
 import httpx
 import pytest
@@ -72,3 +75,19 @@ def test_oracle_reports_a_server_it_cannot_reach(capsys: pytest.CaptureFixture[s
     assert oracle.main(["--url", "http://127.0.0.1:9", "--once"]) == 1
     assert "cannot talk to" in capsys.readouterr().out
     assert oracle.main(["--noise", "2", "--once"]) == 2
+
+
+def test_oracle_stops_on_sigint_even_when_started_with_it_ignored() -> None:
+    """A background job's children inherit SIGINT ignored: the oracle still stops on it (and on SIGTERM)."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        process = subprocess.Popen(
+            [sys.executable, "-m", "app.cli", "oracle", "--url", "http://127.0.0.1:9"],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+        )  # fmt: skip
+        assert process.stdout is not None
+        assert "Ctrl-C stops" in process.stdout.readline()  # (its handlers are set by then)
+        process.send_signal(signum)
+        output, _ = process.communicate(timeout=20)
+        assert process.returncode == 0, output
+        assert "stopped; answered 0 queries" in output
