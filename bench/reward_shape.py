@@ -43,8 +43,9 @@ def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def play(env, policy: str, agent: SACAgent, config: TrainConfig, episodes: int, seed: int) -> dict[str, np.ndarray]:
-    """Observations, distances, successes of every step of `episodes` episodes, and each episode's last distance."""
-    images, distances, successes, final, steps = [], [], [], [], []
+    """Observations, distances, successes of every step of `episodes` episodes, and each episode's last distance
+    and success."""
+    images, distances, successes, final, final_success, steps = [], [], [], [], [], []
     rng = np.random.default_rng(seed)
     space = env.action_space
     for episode in range(episodes):
@@ -67,9 +68,10 @@ def play(env, policy: str, agent: SACAgent, config: TrainConfig, episodes: int, 
             if terminated or truncated:
                 break
         final.append(distances[-1])
+        final_success.append(successes[-1])
     return {
         "images": np.stack(images), "distance": np.array(distances), "success": np.array(successes),
-        "final": np.array(final), "step": np.array(steps),
+        "final": np.array(final), "final_success": np.array(final_success), "step": np.array(steps),
     }  # fmt: skip
 
 
@@ -168,6 +170,9 @@ def main() -> int:
         print(f"  f_psi on success states {logits[success].mean() if success.any() else float('nan'):+.2f}, "
               f"others {logits[~success].mean():+.2f}")  # fmt: skip
         print(f"  f_psi by distance bin: {by_bin}")
+        ended = data["final_success"] > 0
+        missed = " ".join(f"{d:.3f}" for d in np.sort(data["final"][~ended]))
+        print(f"  episodes ending in success {ended.sum()} of {len(ended)}; the others end at {missed or '-'}")
         tenth = max(1, config.episode_steps // 10)
         by_time = " ".join(f"{logits[data['step'] // tenth == t].mean():+.1f}" for t in range(10))
         print(f"  f_psi by tenth of the episode: {by_time}")
