@@ -124,11 +124,12 @@ def main(argv: list[str] | None = None) -> int:
     reported: set[int] = set()
     total = 0
     with httpx.Client(base_url=args.url.rstrip("/"), headers=headers, timeout=30.0) as client:
-        if not args.once:
-            scope = f"run {args.run}" if args.run is not None else "all runs"
-            _stop_on_signals()
-            _say(f"answering queries of {scope} at {args.url} (noise {args.noise}, delay {args.delay}s); Ctrl-C stops")
-        try:
+        try:  # (from the moment the handlers are set: a signal may come at once)
+            if not args.once:
+                scope = f"run {args.run}" if args.run is not None else "all runs"
+                _stop_on_signals()
+                _say(f"answering queries of {scope} at {args.url} (noise {args.noise}, delay {args.delay}s); "
+                     "Ctrl-C stops")  # fmt: skip
             while True:
                 try:
                     total += answer_pending(
