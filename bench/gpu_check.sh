@@ -7,6 +7,8 @@
 #   bash bench/gpu_check.sh learn MINUTES    learning runs side by side on the GPU for MINUTES: VICE-RAQ on the
 #                                            pusher (4 envs, stops at 90%), the door and the picker, each with its task
 #                                            settings, for each seed in SEEDS (default 0; SEEDS="0 1 2": 9 runs)
+#   bash bench/gpu_check.sh pusher MINUTES   VICE-RAQ on the pusher (4 envs, stops at 90%) for each seed in SEEDS (default
+#                                            "3 4 5") side by side, each stopped after MINUTES
 #   bash bench/gpu_check.sh door-sweep MIN   the door's classifier sweep, 8 runs side by side: {5, 10, 100} steps
 #                                            per epoch x lr {1e-4, 3e-4} (issue 11; the paper: 5 steps was best),
 #                                            and 5 and 10 steps at 3e-4 with a query every 1,000 steps and the "no"
@@ -14,11 +16,11 @@
 #                                            no further)
 #   bash bench/gpu_check.sh lease SECONDS    one lease's whole check within SECONDS (default 540, the pip install
 #                                            counted): VICE-RAQ on the pusher alone on the machine (4 envs, seed 0,
-#                                            stops at 90% or after 4 minutes: issue 12's 3-minute target), then
-#                                            loop_speed at 4 envs stepped in turn and in worker processes, then learning
-#                                            runs side by side for the time left: the pusher (PUSHER_SEEDS, default
-#                                            "1 2") and the door with its task settings (DOOR_SEEDS, default "0 1");
-#                                            all comes back in 5 files (learner_speed: the speed phase)
+#                                            stops at 90% or after PUSHER_ALONE_MINUTES, default 3.5: issue 12's
+#                                            3-minute target), then the other pusher seeds side by side (PUSHER_SEEDS,
+#                                            default "1 2"; at most 3.5 minutes), then, alone and while time is left,
+#                                            learner_speed (CUDA graphs, compiled) and loop_speed at 4 envs stepped in
+#                                            turn and in worker processes; all comes back in 5 files
 #   bash bench/gpu_check.sh compare MINUTES  the paper's comparison on the pusher (issue 11): every reward method x
 #                                            seeds 0-2 side by side, to 30K env steps each or MINUTES, then
 #                                            bench/compare.py --by-method (METHODS, SEEDS: fewer, to try it)
@@ -74,16 +76,31 @@ learn_run() {  # TASK SEED MINUTES: VICE-RAQ in the background with the settings
 }
 if [ "$phase" = lease ]; then
   deadline=$((SECONDS + ${2:-540}))  # (bash's SECONDS counts from the script's start, the install included)
-  learn_run pusher 0 4  # alone: the pusher's time to 90% with the machine to itself
+  left() { echo $((deadline - SECONDS)); }
+  learn_run pusher 0 "${PUSHER_ALONE_MINUTES:-3.5}"  # alone: the pusher's time to 90% with the machine to itself
   wait
-  for processes in false true; do  # the 4 envs one after another, then each in a worker process, stepped at once
-    timeout 75 python3 bench/loop_speed.py --device "$device" --steps 3000 --envs 4 --set env_processes=$processes 2>&1 \
-      | tee -a "$OUT/loop_speed.txt"
-  done
-  minutes=$(python3 -c "print(max(1.0, ($deadline - $SECONDS - 50) / 60))")  # (50 s to stop, checkpoint and pack)
-  echo "learning runs for $minutes minutes" | tee "$OUT/learn.txt"
+  # the other pusher seeds side by side, leaving SPEED_RESERVE seconds for the speed figures and packing
+  minutes=$(python3 -c "print(max(1.0, min(3.5, ($(left) - ${SPEED_RESERVE:-230}) / 60)))")
+  echo "pusher seeds ${PUSHER_SEEDS:-1 2} side by side for at most $minutes minutes" | tee "$OUT/learn.txt"
   for seed in ${PUSHER_SEEDS:-1 2}; do learn_run pusher "$seed" "$minutes"; done
-  for seed in ${DOOR_SEEDS:-0 1}; do learn_run door "$seed" "$minutes"; done
+  wait
+  collect
+  # speed, each alone on the machine while time is left: the update (CUDA graphs, and compiled), then the whole loop
+  # at 4 envs stepped in turn and in worker processes
+  if [ "$(left)" -gt 100 ]; then
+    timeout $(($(left) - 60)) python3 bench/learner_speed.py --device "$device" --graphs-only --compile --updates 500 \
+      2>&1 | tee "$OUT/learner_speed.txt"
+  fi
+  for processes in false true; do
+    [ "$(left)" -gt 40 ] || break
+    timeout $(($(left) - 15)) python3 bench/loop_speed.py --device "$device" --steps 3000 --envs 4 \
+      --set env_processes=$processes 2>&1 | tee -a "$OUT/loop_speed.txt"
+  done
+  exit 0
+fi
+
+if [ "$phase" = pusher ]; then  # VICE-RAQ on the pusher (4 envs, stops at 90%) for each seed in SEEDS side by side
+  for seed in ${SEEDS:-3 4 5}; do learn_run pusher "$seed" "$minutes"; done
   wait
   collect
   exit 0

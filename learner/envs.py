@@ -38,8 +38,8 @@ SIM_TASK_SETTINGS: dict[str, TaskSettings] = {
     "VisualPusher-v0": TaskSettings(
         {"query_every": 5000, "query_budget": 20, "classifier_steps": 100},
         "VICE-RAQ on the CPU reached 90% success within 30K env steps in 12 of 15 seeds (at 11K-28K, 2-5 queries; "
-        "two others 80% at best, one 0%), with 4 envs in lockstep in 8 of 12, and on a GPU with 4 envs at 16K-28K in 3 "
-        "of 3 seeds; with 10 classifier steps per epoch seed 0 stayed at 0%.",
+        "two others 80% at best, one 0%), with 4 envs in lockstep in 8 of 12, and on an H100 with 4 envs in 7 of 9 "
+        "(at 16K-28K; seed 0 alone in 1.4 minutes); with 10 classifier steps per epoch seed 0 stayed at 0%.",
     ),
     "VisualDoor-v0": TaskSettings(
         {"query_every": 1000, "query_budget": 300, "classifier_steps": 10, "no_answer_share": 0.25},
