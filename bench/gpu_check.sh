@@ -99,7 +99,7 @@ if [ "$phase" = lease ]; then
   exit 0
 fi
 
-if [ "$phase" = pusher ]; then  # VICE-RAQ on the pusher (4 envs, stops at 90%) for each seed in SEEDS side by side
+if [ "$phase" = pusher ]; then
   for seed in ${SEEDS:-3 4 5}; do learn_run pusher "$seed" "$minutes"; done
   wait
   collect
