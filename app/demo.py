@@ -6,9 +6,9 @@ import logging
 import numpy as np
 from PIL import Image
 
-from app.settings import Settings
-from app.store import Store
-from learner.config import TrainConfig
+from contract.config import TrainConfig
+from contract.settings import Settings
+from contract.store import Store
 
 logger = logging.getLogger(__name__)
 

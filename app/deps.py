@@ -9,8 +9,8 @@ from urllib.parse import urlsplit
 from fastapi import Depends, HTTPException, Path, Request, status
 from starlette.concurrency import run_in_threadpool
 
-from app.settings import Settings
-from app.store import INT32_MAX, Store
+from contract.settings import Settings
+from contract.store import INT32_MAX, Store
 
 SESSION_COOKIE = "raq_session"
 AUTHORISED_STATE = "raq_authorised"  # set in the request's state by app.security.RequestGuard

@@ -8,7 +8,7 @@ import time
 import zipfile
 from collections.abc import Iterable, Iterator
 
-from app.store import Store
+from contract.store import Store
 
 
 def metrics_csv(store: Store, *, run_id: int) -> Iterator[str]:

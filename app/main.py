@@ -17,8 +17,8 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 from app.routers import compare, docs, envs, events, exports, goal_sets, health, metrics, pages, queries, runs
 from app.schemas import errors
 from app.security import RequestGuard
-from app.settings import Settings, get_settings
-from app.store import Conflict, InvalidInput, NotFound, Store
+from contract.settings import Settings, get_settings
+from contract.store import Conflict, InvalidInput, NotFound, Store
 
 ROOT = Path(__file__).resolve().parent.parent
 STATIC_DIR = ROOT / "static"

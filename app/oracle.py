@@ -14,7 +14,7 @@ from typing import Any
 
 import httpx
 
-from app.settings import get_settings
+from contract.settings import get_settings
 
 SUCCESS_THRESHOLD = 0.5
 POLL_SECONDS = 1.0

@@ -6,8 +6,8 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
-from app.store import INT32_MAX, GoalExample, GoalSet, Query, Rollout, Run, RunPhase, RunStatus, seconds_since
-from app.store.models import Event
+from contract.store import INT32_MAX, GoalExample, GoalSet, Query, Rollout, Run, RunPhase, RunStatus, seconds_since
+from contract.store.models import Event
 
 
 def _storable_text(value: str) -> str:

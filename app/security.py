@@ -20,8 +20,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.deps import AUTHORISED_STATE, UNAUTHORISED_DETAIL, is_authorised_async
 from app.routers.goal_sets import MAX_FILES_PER_UPLOAD
-from app.settings import Settings
-from app.store import Store
+from contract.settings import Settings
+from contract.store import Store
 
 UPLOAD_PATH = re.compile(r"^/api/goal-sets/[^/]+/examples/?$")
 PUBLIC_PATHS = ("/login", "/logout", "/health")

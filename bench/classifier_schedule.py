@@ -33,8 +33,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from bench.reward_shape import door_landscape, load_run, play, rank_correlation  # noqa: E402
-from learner.config import TrainConfig  # noqa: E402
-from learner.envs import make_env  # noqa: E402
+from contract.config import TrainConfig  # noqa: E402
+from contract.envs import make_env  # noqa: E402
 from learner.replay import ReplayBuffer  # noqa: E402
 from learner.reward import RewardModel  # noqa: E402
 from learner.sac import SACAgent  # noqa: E402

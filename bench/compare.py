@@ -20,7 +20,7 @@ sys.path.insert(0, str(ROOT))
 
 from app.routers.compare import mean_and_spread  # noqa: E402
 from bench.plot import line_plot  # noqa: E402
-from learner.algorithms import ALGORITHM_SPECS, ALGORITHMS  # noqa: E402
+from contract.algorithms import ALGORITHM_SPECS, ALGORITHMS  # noqa: E402
 
 RUN_NAME = re.compile(r"^(?P<task>[a-z]+)-(?P<algorithm>[a-z_]+)-seed(?P<seed>\d+)$")
 

@@ -126,7 +126,7 @@ if [ "$phase" = door-sweep ]; then
 fi
 
 if [ "$phase" = compare ]; then
-  methods=${METHODS:-$(python3 -c "from learner.algorithms import ALGORITHMS; print(*ALGORITHMS)")}
+  methods=${METHODS:-$(python3 -c "from contract.algorithms import ALGORITHMS; print(*ALGORITHMS)")}
   compared=()  # exactly this phase's runs (not the learn phase's pusher run, stopped at its first 90%)
   for method in $methods; do
     for seed in ${SEEDS:-0 1 2}; do

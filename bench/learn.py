@@ -24,11 +24,11 @@ sys.path.insert(0, str(ROOT))
 
 from app.demo import add_simulated_goal_set  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
-from app.store import Store  # noqa: E402
 from bench.plot import line_plot  # noqa: E402
 from bench.processes import stop_all  # noqa: E402
-from learner.config import TrainConfig  # noqa: E402
-from learner.envs import SIM_TASK_SETTINGS  # noqa: E402
+from contract.config import TrainConfig  # noqa: E402
+from contract.envs import SIM_TASK_SETTINGS  # noqa: E402
+from contract.store import Store  # noqa: E402
 from sim import TASKS  # noqa: E402
 
 CURVE_METRICS = [
@@ -188,7 +188,7 @@ def main() -> int:
     parser.add_argument("--total-steps", type=int, default=100_000)
     parser.add_argument(
         "--task-settings", action="store_true",
-        help="start from the settings the task was measured to learn with (learner.envs.SIM_TASK_SETTINGS, the New "
+        help="start from the settings the task was measured to learn with (contract.envs.SIM_TASK_SETTINGS, the New "
         "run form's); --query-every, --query-budget and --set still win",
     )  # fmt: skip
     parser.add_argument("--query-every", type=int, default=None, help="default: TrainConfig's (5000)")
@@ -258,7 +258,7 @@ def main() -> int:
         )  # fmt: skip
     resumed_at = int(run.step or 0)
 
-    raq = [sys.executable, "-m", "app.cli"]
+    raq = [sys.executable, "-m", "cli"]
     logs = {key: (out / f"{key}.log").open("a" if args.resume else "w") for key in ("serve", "oracle", "learn")}
     serve = subprocess.Popen(
         raq + ["serve", "--port", str(port)], env=env, stdout=logs["serve"], stderr=subprocess.STDOUT

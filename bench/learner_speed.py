@@ -29,8 +29,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from learner.algorithms import ALGORITHM_SPECS  # noqa: E402
-from learner.config import TrainConfig  # noqa: E402
+from contract.algorithms import ALGORITHM_SPECS  # noqa: E402
+from contract.config import TrainConfig  # noqa: E402
 from learner.networks import resolve_precision  # noqa: E402
 from learner.replay import ReplayBuffer, shift_pad  # noqa: E402
 from learner.reward import RewardModel  # noqa: E402

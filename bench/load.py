@@ -47,11 +47,11 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from app.migrate import upgrade  # noqa: E402
-from app.store import INT32_MAX, QueryStatus, RunStatus, Store  # noqa: E402
 from bench.processes import stop_all  # noqa: E402
+from contract.config import TrainConfig  # noqa: E402
+from contract.envs import encode_png  # noqa: E402
+from contract.store import INT32_MAX, QueryStatus, RunStatus, Store  # noqa: E402
 from learner import testing_envs  # noqa: E402
-from learner.config import TrainConfig  # noqa: E402
-from learner.envs import encode_png  # noqa: E402
 
 ENV = "learner.testing_envs:DotReach-v0"
 

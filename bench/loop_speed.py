@@ -50,9 +50,9 @@ import torch  # noqa: E402
 
 from app.demo import add_simulated_goal_set  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
-from app.store import Store  # noqa: E402
 from bench.learn import parse_overrides  # noqa: E402
-from learner.config import TrainConfig  # noqa: E402
+from contract.config import TrainConfig  # noqa: E402
+from contract.store import Store  # noqa: E402
 from learner.networks import resolve_precision  # noqa: E402
 from learner.train import Trainer  # noqa: E402
 from sim import TASKS  # noqa: E402

@@ -23,7 +23,7 @@ import torch
 os.environ.setdefault("MUJOCO_GL", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from learner.config import TrainConfig  # noqa: E402
+from contract.config import TrainConfig  # noqa: E402
 from learner.reward import RewardModel  # noqa: E402
 from sim import TASKS  # noqa: E402
 

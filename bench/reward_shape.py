@@ -25,9 +25,9 @@ import numpy as np
 os.environ.setdefault("MUJOCO_GL", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from contract.config import TrainConfig  # noqa: E402
+from contract.envs import make_env, model_image, scale_action  # noqa: E402
 from learner.checkpoint import load_checkpoint  # noqa: E402
-from learner.config import TrainConfig  # noqa: E402
-from learner.envs import make_env, model_image, scale_action  # noqa: E402
 from learner.reward import RewardModel  # noqa: E402
 from learner.sac import SACAgent  # noqa: E402
 from sim.scripted import scripted_action  # noqa: E402

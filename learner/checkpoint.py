@@ -20,7 +20,7 @@ from typing import Any
 
 import torch
 
-from learner.checkpoint_location import FILENAME, checkpoint_path, checkpoint_url, is_remote
+from contract.checkpoint_location import FILENAME, checkpoint_path, checkpoint_url, is_remote
 
 __all__ = ["FILENAME", "checkpoint_path", "checkpoint_url", "is_remote", "load_checkpoint", "save_checkpoint"]
 

@@ -9,7 +9,7 @@ step and reset and sent with the result, so asking for it costs no round trip), 
 checkpoint keeps (`env.unwrapped.np_random.bit_generator.state`, read and set in the worker).
 
 Workers start with "spawn" (a fresh interpreter: no copy of the learner's torch threads or EGL contexts), make
-their env with `learner.envs.make_env` (the operator's RAQ_ENV_MODULES is read there as here), and exit when their
+their env with `contract.envs.make_env` (the operator's RAQ_ENV_MODULES is read there as here), and exit when their
 pipe closes. An error in a worker is raised in the learner with the worker's traceback.
 """
 
@@ -22,7 +22,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from learner.envs import make_env
+from contract.envs import make_env
 
 START_SECONDS = 120.0
 """How long a worker may take to import its modules and make its env."""
@@ -125,7 +125,7 @@ class _RemoteUnwrapped:
 
 
 class _RemoteUnwrappedWithSnapshots(_RemoteUnwrapped):
-    """... and the state snapshot protocol (`learner.envs.snapshot_of`), for an env that has it."""
+    """... and the state snapshot protocol (`contract.envs.snapshot_of`), for an env that has it."""
 
     def state_snapshot(self) -> Any:
         return self.env.snapshot

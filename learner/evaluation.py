@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 import gymnasium
 import numpy as np
 
-from app.store import Store
-from learner.config import TrainConfig
-from learner.envs import check_action_space, display_image, encode_gif, model_image, scale_action, success_of
+from contract.config import TrainConfig
+from contract.envs import check_action_space, display_image, encode_gif, model_image, scale_action, success_of
+from contract.store import Store
 from learner.reward import RewardModel
 from learner.run_control import RunControl
 from learner.sac import SACAgent

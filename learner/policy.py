@@ -5,7 +5,7 @@
     action = policy.act(observation)                    # uint8 (H, W, 3) image -> action in [-1, 1]^dim(A)
     env_action = policy.env_action(observation, env)    # the same, scaled to env.action_space
 
-The observation is resized to the run's image_size the way the learner resizes it (learner.envs.model_image).
+The observation is resized to the run's image_size the way the learner resizes it (contract.envs.model_image).
 """
 
 import json
@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from learner.config import TrainConfig
-from learner.envs import model_image, scale_action
+from contract.config import TrainConfig
+from contract.envs import model_image, scale_action
 from learner.sac import SACAgent
 
 

@@ -12,10 +12,10 @@ from typing import Any
 
 import numpy as np
 
-from app.store import QueryStatus, Store
-from learner.algorithms import ALGORITHM_SPECS
-from learner.config import TrainConfig
-from learner.envs import decode_image, encode_png, jsonable
+from contract.algorithms import ALGORITHM_SPECS
+from contract.config import TrainConfig
+from contract.envs import decode_image, encode_png, jsonable
+from contract.store import QueryStatus, Store
 from learner.queries import QuerySelector, digest
 from learner.reward import RewardModel
 from learner.run_control import Counters, RunControl

@@ -19,8 +19,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from learner.algorithms import ALGORITHM_SPECS
-from learner.config import TrainConfig
+from contract.algorithms import ALGORITHM_SPECS
+from contract.config import TrainConfig
 from learner.networks import RewardClassifier, autocast_of, dtype_of, resolve_precision, to_float
 from learner.replay import ReplayBuffer
 

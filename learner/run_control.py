@@ -11,7 +11,7 @@ import time
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from app.store import RunStatus, Store
+from contract.store import RunStatus, Store
 
 logger = logging.getLogger("learner.train")
 

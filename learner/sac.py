@@ -16,7 +16,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from learner.config import TrainConfig
+from contract.config import TrainConfig
 from learner.networks import (
     TWIN_MLP_INDICES,
     Actor,

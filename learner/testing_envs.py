@@ -55,7 +55,7 @@ class DotReach(gym.Env[np.ndarray, np.ndarray]):
     def render(self) -> np.ndarray | None:
         return self._draw(self.render_size) if self.render_mode == "rgb_array" else None
 
-    # the optional state-snapshot protocol (learner.envs.snapshot_of): its query candidates are scored in batches
+    # the optional state-snapshot protocol (contract.envs.snapshot_of): its query candidates are scored in batches
     def state_snapshot(self) -> np.ndarray:
         return self.position.copy()
 
@@ -64,8 +64,8 @@ class DotReach(gym.Env[np.ndarray, np.ndarray]):
 
 
 def add_dot_goals(store: Any, name: str = "dot") -> int:
-    """A goal set of 4 DotReach goal images (16 px; display 32 px) in `store` (an app.store.Store); its id."""
-    from learner.envs import encode_png
+    """A goal set of 4 DotReach goal images (16 px; display 32 px) in `store` (an contract.store.Store); its id."""
+    from contract.envs import encode_png
 
     goal_set = store.create_goal_set(name=name, image_size=16)
     env = DotReach(obs_size=16, render_size=32)

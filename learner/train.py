@@ -19,7 +19,6 @@ outcome of the step. Episodes end on the time limit only (no terminal on success
 
 import contextlib
 import functools
-import io
 import json
 import threading
 import time
@@ -31,16 +30,11 @@ from typing import Any
 import gymnasium
 import numpy as np
 import torch
-from PIL import Image, ImageOps
 
-from app.store import Run, RunPhase, RunStatus, Store
-from learner.algorithms import ALGORITHM_SPECS
-from learner.checkpoint import checkpoint_url as checkpoint_location
-from learner.checkpoint import load_checkpoint, save_checkpoint
-from learner.checkpoint_location import POLICY_FILENAME, sibling
-from learner.config import TrainConfig
-from learner.env_workers import ProcessEnv, process_envs
-from learner.envs import (
+from contract.algorithms import ALGORITHM_SPECS
+from contract.checkpoint_location import POLICY_FILENAME, sibling
+from contract.config import TrainConfig
+from contract.envs import (
     check_action_space,
     display_image,
     display_of_snapshot,
@@ -50,6 +44,11 @@ from learner.envs import (
     snapshot_of,
     success_of,
 )
+from contract.images import decoded_array, model_array
+from contract.store import Run, RunPhase, RunStatus, Store
+from learner.checkpoint import checkpoint_url as checkpoint_location
+from learner.checkpoint import load_checkpoint, save_checkpoint
+from learner.env_workers import ProcessEnv, process_envs
 from learner.evaluation import Evaluator, eval_env_count
 from learner.networks import resolve_precision
 from learner.query_channel import QueryChannel
@@ -648,9 +647,9 @@ class Trainer:
         size = self.config.image_size
         images, remade = [], 0
         for goal in goals:
-            image = decode_image_at_size(goal.model_png)
+            image = decoded_array(goal.model_png)
             if image.shape[:2] != (size, size):  # the goal set's model size is not the run's: remake from original
-                image = model_copy(goal.original, size)
+                image = model_array(goal.original, size)
                 remade += 1
             images.append(image)
         self.reward_model.goals = np.stack(images)
@@ -680,30 +679,6 @@ class EnvEpisode:
     obs_slot: int = 0
     length: int = 0
     total: float = 0.0
-
-
-def decode_image_at_size(data: bytes) -> np.ndarray:
-    """PNG bytes -> uint8 HWC RGB at the size stored."""
-    with Image.open(io.BytesIO(data)) as image:
-        return np.array(image.convert("RGB"))
-
-
-def model_copy(original: bytes, size: int) -> np.ndarray:
-    """A goal example's model view made from its uploaded original the way the web app makes it (app/images.py
-    to_png): upright, transparency flattened onto white, centre-cropped to a square, LANCZOS (area) resize."""
-    with Image.open(io.BytesIO(original)) as opened:
-        opened.load()
-        image = ImageOps.exif_transpose(opened)
-    if image.mode in ("RGBA", "LA") or (image.mode == "P" and "transparency" in image.info):
-        rgba = image.convert("RGBA")
-        background = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
-        image = Image.alpha_composite(background, rgba)
-    image = image.convert("RGB")
-    width, height = image.size
-    side = min(width, height)
-    left, top = (width - side) // 2, (height - side) // 2
-    square = image.crop((left, top, left + side, top + side))
-    return np.array(square.resize((size, size), Image.Resampling.LANCZOS, reducing_gap=3.0))
 
 
 def _cuda_rng_states(device: torch.device) -> list[torch.Tensor] | None:

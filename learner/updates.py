@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from learner.algorithms import AlgorithmSpec
-from learner.config import TrainConfig
+from contract.algorithms import AlgorithmSpec
+from contract.config import TrainConfig
 from learner.device_replay import DeviceReplay
 from learner.replay import ReplayBuffer, shift_pad
 from learner.reward import Policy, RewardModel

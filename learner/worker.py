@@ -19,8 +19,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
-from app.settings import Settings, get_settings
-from app.store import NotFound, RunStatus, Store
+from contract.settings import Settings, get_settings
+from contract.store import NotFound, RunStatus, Store
 from learner.train import Outcome, train_run
 
 logger = logging.getLogger(__name__)

@@ -2,9 +2,9 @@
 
 from alembic import context
 
-from app.settings import get_settings
-from app.store.db import make_engine
-from app.store.models import Base
+from contract.settings import get_settings
+from contract.store.db import make_engine
+from contract.store.models import Base
 
 config = context.config
 target_metadata = Base.metadata

@@ -19,8 +19,8 @@ from PIL import Image
 
 from app.main import create_app
 from app.migrate import upgrade
-from app.settings import Settings
-from app.store import Store
+from contract.settings import Settings
+from contract.store import Store
 
 ROOT = Path(__file__).resolve().parent.parent
 # The tests' own env module, allowed for every learner the tests start (in-process or as a subprocess).

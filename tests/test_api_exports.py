@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from app.exports import read_tensorboard_scalars
-from app.store import RunStatus, Store
+from contract.store import RunStatus, Store
 
 ROOT = Path(__file__).resolve().parent.parent
 

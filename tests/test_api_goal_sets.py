@@ -7,8 +7,8 @@ import pytest
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from app.images import ImageRejected, decode_upload, to_png
-from app.store import Store
+from contract.images import ImageRejected, decode_upload, to_png
+from contract.store import Store
 
 
 def _create(client: TestClient, name: str = "goals", **extra: object) -> dict:

@@ -5,7 +5,7 @@ import io
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from app.store import Store
+from contract.store import Store
 
 
 def _png(size: int, shade: int) -> bytes:

@@ -5,8 +5,8 @@ import io
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from app.store import RunStatus, Store
-from learner.config import TrainConfig
+from contract.config import TrainConfig
+from contract.store import RunStatus, Store
 
 
 def _create_run(client: TestClient, goal_set_id: int | None, **body: object) -> dict:

@@ -14,7 +14,7 @@ from conftest import LiveServer
 from PIL import Image, ImageDraw
 from playwright.sync_api import Browser, Page, expect, sync_playwright
 
-from app.store import RunStatus, Store
+from contract.store import RunStatus, Store
 
 ARTIFACTS = Path(__file__).resolve().parent.parent / "test-artifacts"
 CHROMIUM_ARGS = [

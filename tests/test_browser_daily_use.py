@@ -11,7 +11,7 @@ import pytest
 from playwright.sync_api import Browser, Page, expect
 from test_browser import _gif, _scene, _shot, browser  # noqa: F401 - the module's Chromium fixture
 
-from app.store import RunStatus, Store
+from contract.store import RunStatus, Store
 
 pytestmark = pytest.mark.browser
 

@@ -3,9 +3,9 @@
 from pathlib import Path
 
 from app.demo import DEMO_GOAL_COUNT, ensure_demo_run
-from app.settings import Settings
-from app.store import Store
-from learner.config import TrainConfig
+from contract.config import TrainConfig
+from contract.settings import Settings
+from contract.store import Store
 
 
 def test_demo_run_is_made_once_on_an_empty_database(tmp_path: Path, database_url: str) -> None:

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from learner.algorithms import ALGORITHM_SPECS
-from learner.config import TrainConfig
+from contract.algorithms import ALGORITHM_SPECS
+from contract.config import TrainConfig
 from learner.device_replay import DeviceReplay
 from learner.replay import ReplayBuffer, edge_pad
 from learner.reward import RewardModel, mixup

@@ -6,10 +6,10 @@ import os
 import numpy as np
 import pytest
 
-from app.settings import Settings
-from app.store import Store
+from contract.envs import display_of_snapshot, make_env, snapshot_of
+from contract.settings import Settings
+from contract.store import Store
 from learner.env_workers import ProcessEnv, WorkerError, process_envs
-from learner.envs import display_of_snapshot, make_env, snapshot_of
 from learner.train import Outcome, Trainer
 from tests.test_learner_run import ENV, _claimed_trainer, create_run, setup, tiny_config
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from conftest import LiveServer, image_bytes
 
-from app.store import Store
+from contract.store import Store
 
 TOKEN = "fuzz-token"
 CHECKS = "not_a_server_error,status_code_conformance,content_type_conformance,response_schema_conformance"

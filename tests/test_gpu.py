@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from learner.algorithms import ALGORITHM_SPECS
-from learner.config import TrainConfig
+from contract.algorithms import ALGORITHM_SPECS
+from contract.config import TrainConfig
 from learner.replay import ReplayBuffer
 from learner.reward import RewardModel
 from learner.sac import SACAgent

@@ -15,11 +15,11 @@ import sqlalchemy as sa
 from conftest import ROOT, LiveServer, image_bytes
 from fastapi.testclient import TestClient
 
-from app.settings import Settings
-from app.store import INT64_MAX, LoginFailure, Query, Store
-from app.store.models import utcnow
-from learner import envs
-from learner.config import host_cuda_devices
+from contract import envs
+from contract.config import host_cuda_devices
+from contract.settings import Settings
+from contract.store import INT64_MAX, LoginFailure, Query, Store
+from contract.store.models import utcnow
 from learner.worker import _last_line, work
 
 TOKEN = "hardening-token"
@@ -342,7 +342,7 @@ def test_sessions_are_server_side_and_an_operator_can_end_them_all(
     settings = make_settings(api_token=TOKEN)
     env = {"RAQ_DATABASE_URL": settings.resolved_database_url, "RAQ_DATA_DIR": str(settings.data_dir), "PATH": ""}
     result = subprocess.run(
-        [sys.executable, "-m", "app.cli", "sessions", "--end-all"], cwd=ROOT, env=env, capture_output=True,
+        [sys.executable, "-m", "cli", "sessions", "--end-all"], cwd=ROOT, env=env, capture_output=True,
         text=True, timeout=120, check=False,
     )  # fmt: skip
     assert result.returncode == 0 and "ended 2 login session(s)" in result.stdout, result.stdout + result.stderr

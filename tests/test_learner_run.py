@@ -19,11 +19,11 @@ import torch
 from PIL import Image
 
 from app.migrate import upgrade
-from app.settings import Settings
-from app.store import RunStatus, Store
+from contract.config import TrainConfig
+from contract.envs import decode_image, encode_png, model_image, scale_action
+from contract.settings import Settings
+from contract.store import RunStatus, Store
 from learner.checkpoint import checkpoint_path, load_checkpoint
-from learner.config import TrainConfig
-from learner.envs import decode_image, encode_png, model_image, scale_action
 from learner.reward import RewardModel
 from learner.testing_envs import add_dot_goals
 from learner.train import Outcome, Trainer

@@ -12,8 +12,8 @@ import torch
 import torch.nn.functional as F
 from PIL import Image
 
-from learner.config import TrainConfig
-from learner.envs import encode_gif
+from contract.config import TrainConfig
+from contract.envs import encode_gif
 from learner.networks import (
     _matmul_seconds,
     input_dtype,

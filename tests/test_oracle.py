@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from app import oracle
-from app.store import Store
+from contract.store import Store
 
 
 def _png(size: int) -> bytes:
@@ -81,7 +81,7 @@ def test_oracle_stops_on_sigint_even_when_started_with_it_ignored() -> None:
     """A background job's children inherit SIGINT ignored: the oracle still stops on it (and on SIGTERM)."""
     for signum in (signal.SIGINT, signal.SIGTERM):
         process = subprocess.Popen(
-            [sys.executable, "-m", "app.cli", "oracle", "--url", "http://127.0.0.1:9"],
+            [sys.executable, "-m", "cli", "oracle", "--url", "http://127.0.0.1:9"],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
         )  # fmt: skip

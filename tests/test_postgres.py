@@ -22,8 +22,8 @@ from sqlalchemy import inspect, text
 from test_store import _claim_all, check_answer_numbers_heal  # the same checks as on SQLite
 
 from app.migrate import downgrade, upgrade
-from app.store import Conflict, Store
-from app.store.db import IDLE_PING_S
+from contract.store import Conflict, Store
+from contract.store.db import IDLE_PING_S
 
 PNG = b"\x89PNG\r\n\x1a\nquery"
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from conftest import free_port
 from sqlalchemy import func, select
 
-from app.store import LoginFailure, Store
+from contract.store import LoginFailure, Store
 
 
 def wait_for_health(port: int, process: subprocess.Popen, timeout: float = 90) -> dict:
@@ -35,7 +35,7 @@ def test_raq_up_serves_health_runs_a_learner_and_stops_cleanly(tmp_path: Path) -
     env.pop("DATABASE_URL", None)
     log = (tmp_path / "up.log").open("w")
     process = subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "up"], env=env, stdout=log, stderr=subprocess.STDOUT,
+        [sys.executable, "-m", "cli", "up"], env=env, stdout=log, stderr=subprocess.STDOUT,
         start_new_session=True,
     )  # fmt: skip
     try:
@@ -78,7 +78,7 @@ def test_raq_serve_with_two_workers_shares_the_login_limit_between_its_processes
     env.pop("DATABASE_URL", None)
     log = (tmp_path / "serve.log").open("w")
     process = subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "serve", "--workers", "2"], env=env, stdout=log, stderr=subprocess.STDOUT,
+        [sys.executable, "-m", "cli", "serve", "--workers", "2"], env=env, stdout=log, stderr=subprocess.STDOUT,
         start_new_session=True,
     )  # fmt: skip
     try:

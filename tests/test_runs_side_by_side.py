@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 from sqlalchemy import func, select, update
 
-from app.cli import default_learners
-from app.store import Conflict, RunStatus, Store
-from app.store.models import Event, Metric, Query, Run, utcnow
+from cli import default_learners
+from contract.store import Conflict, RunStatus, Store
+from contract.store.models import Event, Metric, Query, Run, utcnow
 
 
 def new_run(store: Store, *, priority: int = 0, total_steps: int = 100) -> int:
@@ -91,7 +91,7 @@ def test_a_lower_priority_run_yields_at_its_next_checkpoint(tmp_path: Path) -> N
     """A real learner trains the demo-like low-priority run; a person's run is queued and waits; at the next
     checkpoint the learner queues the low run again, trains the person's run, then resumes the low one."""
     from app.migrate import upgrade
-    from app.settings import Settings
+    from contract.settings import Settings
     from learner.worker import work
     from tests.test_learner_run import tiny_config
 
@@ -139,7 +139,7 @@ def test_a_lower_priority_run_yields_at_its_next_checkpoint(tmp_path: Path) -> N
         from fastapi.testclient import TestClient
 
         from app.main import create_app
-        from learner.envs import make_env
+        from contract.envs import make_env
         from learner.policy import load_policy
 
         with TestClient(create_app(settings)) as client:

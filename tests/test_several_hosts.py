@@ -25,10 +25,10 @@ from sqlalchemy import create_engine, text
 from test_learner_run import tiny_config
 from test_postgres import postgres_url  # noqa: F401  (the module's own PostgreSQL server)
 
-import app.store.store as store_module
+import contract.store.store as store_module
 from app.migrate import upgrade
-from app.settings import Settings
-from app.store import RunStatus, Store
+from contract.settings import Settings
+from contract.store import RunStatus, Store
 from learner.checkpoint import checkpoint_url, load_checkpoint, save_checkpoint
 from learner.testing_envs import add_dot_goals
 

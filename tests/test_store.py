@@ -12,7 +12,7 @@ from conftest import answer_at_once
 from sqlalchemy import inspect, text
 
 from app.migrate import downgrade, upgrade
-from app.store import Conflict, InvalidInput, NotFound, QueryStatus, RunStatus, Store
+from contract.store import Conflict, InvalidInput, NotFound, QueryStatus, RunStatus, Store
 
 PNG = b"\x89PNG\r\n\x1a\nfake-but-opaque-bytes"
 
@@ -38,7 +38,7 @@ def test_sqlite_connections_use_wal_busy_timeout_and_foreign_keys(store: Store) 
 
 
 def test_store_imports_neither_torch_nor_fastapi() -> None:
-    code = "import sys, app.store; print('torch' in sys.modules, 'fastapi' in sys.modules)"
+    code = "import sys, contract.store; print('torch' in sys.modules, 'fastapi' in sys.modules)"
     import subprocess
     import sys
 

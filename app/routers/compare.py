@@ -7,7 +7,7 @@ from fastapi import APIRouter, HTTPException, Query
 
 from app.deps import ReadAuth, StoreDep
 from app.schemas import CompareGroupOut, CompareOut, errors
-from app.store import INT32_MAX, Store
+from contract.store import INT32_MAX, Store
 
 router = APIRouter(prefix="/api/compare", tags=["compare"], responses=errors(401))
 

@@ -12,7 +12,7 @@ from pydantic import BaseModel
 
 from app.deps import ReadAuth, SettingsDep
 from app.schemas import errors
-from learner.envs import SIM_ENV_IDS, SIM_TASK_SETTINGS, env_id_problem, first_frames, known_env_ids
+from contract.envs import SIM_ENV_IDS, SIM_TASK_SETTINGS, env_id_problem, first_frames, known_env_ids
 
 router = APIRouter(prefix="/api/envs", tags=["envs"], responses=errors(401))
 _preview_lock = threading.Lock()  # one env made at a time: rendering contexts are not free

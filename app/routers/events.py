@@ -6,7 +6,7 @@ from fastapi import APIRouter, Query
 
 from app.deps import ReadAuth, RunId, StoreDep
 from app.schemas import EventOut, errors
-from app.store import INT32_MAX
+from contract.store import INT32_MAX
 
 router = APIRouter(prefix="/api/runs", tags=["events"], responses=errors(401))
 

@@ -12,11 +12,11 @@ from fastapi.responses import FileResponse, StreamingResponse
 from app.deps import ReadAuth, RunId, SettingsDep, StoreDep
 from app.exports import gif_to_avi, metrics_csv, queries_zip, tensorboard_events
 from app.schemas import errors
-from learner.checkpoint_location import FILENAME, POLICY_FILENAME, is_remote, run_folder
+from contract.checkpoint_location import FILENAME, POLICY_FILENAME, is_remote, run_folder
 
 router = APIRouter(prefix="/api/runs", tags=["exports"], responses=errors(401, 404))
 
-# A run's files (learner/checkpoint_location.py: <RAQ_CHECKPOINT_URL>/run-<id>/): policy.pt holds the actor and
+# A run's files (contract/checkpoint_location.py: <RAQ_CHECKPOINT_URL>/run-<id>/): policy.pt holds the actor and
 # its encoder with the run's config; checkpoint.pt everything (replay buffer included).
 POLICY_FILES = (POLICY_FILENAME, FILENAME)
 

@@ -6,8 +6,8 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, File, HTTPException, Query, Response, UploadFile, status
 
 from app.deps import GoalExampleId, GoalSetId, ReadAuth, SettingsDep, StoreDep, WriteAuth
-from app.images import ImageRejected, PreparedImage, prepare_upload
 from app.schemas import WRITE_ERRORS, ErrorOut, GoalExampleOut, GoalSetCreate, GoalSetDetail, GoalSetOut, errors
+from contract.images import ImageRejected, PreparedImage, prepare_upload
 
 router = APIRouter(tags=["goal sets"], responses=errors(401))
 

@@ -7,7 +7,7 @@ from fastapi import APIRouter, HTTPException, Query
 
 from app.deps import ReadAuth, RunId, StoreDep
 from app.schemas import MetricsOut, errors
-from app.store import INT64_MAX
+from contract.store import INT64_MAX
 
 router = APIRouter(prefix="/api/runs", tags=["metrics"], responses=errors(401))
 

@@ -26,10 +26,10 @@ from app.routers.compare import COMPARE_METRICS
 from app.routers.envs import task_settings_out
 from app.routers.runs import list_run_outs, run_detail, run_out
 from app.schemas import GoalExampleOut, GoalSetOut
-from app.store import INT32_MAX, NotFound, QueryStatus, RunStatus
-from learner.algorithms import ALGORITHM_SPECS
-from learner.config import TrainConfig
-from learner.envs import SIM_ENV_IDS, known_env_ids
+from contract.algorithms import ALGORITHM_SPECS
+from contract.config import TrainConfig
+from contract.envs import SIM_ENV_IDS, known_env_ids
+from contract.store import INT32_MAX, NotFound, QueryStatus, RunStatus
 
 TEMPLATES_DIR = Path(__file__).resolve().parent.parent.parent / "templates"
 templates = Jinja2Templates(directory=TEMPLATES_DIR)

@@ -13,7 +13,7 @@ from starlette.concurrency import run_in_threadpool
 from app.deps import QueryId, ReadAuth, StoreDep, WriteAuth
 from app.routers.runs import run_out
 from app.schemas import WRITE_ERRORS, AnswerIn, GoalExampleOut, QueryOut, QueueItem, SkipIn, errors
-from app.store import INT32_MAX, NotFound, QueryStatus, Store
+from contract.store import INT32_MAX, NotFound, QueryStatus, Store
 
 router = APIRouter(prefix="/api/queries", tags=["queries"], responses=errors(401))
 

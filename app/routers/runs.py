@@ -10,12 +10,12 @@ from fastapi import APIRouter, HTTPException, Query, Response, status
 
 from app.deps import ReadAuth, RunId, SettingsDep, StoreDep, WriteAuth
 from app.schemas import WRITE_ERRORS, RolloutOut, RunCreate, RunDetail, RunOut, RunUpdate, SweepCreate, errors
-from app.settings import Settings
-from app.store import NotFound, Run, Store
-from learner.algorithms import ALGORITHM_SPECS
-from learner.checkpoint_location import is_remote, run_folder
-from learner.config import TrainConfig, host_cuda_devices, host_memory_bytes
-from learner.envs import env_id_problem
+from contract.algorithms import ALGORITHM_SPECS
+from contract.checkpoint_location import is_remote, run_folder
+from contract.config import TrainConfig, host_cuda_devices, host_memory_bytes
+from contract.envs import env_id_problem
+from contract.settings import Settings
+from contract.store import NotFound, Run, Store
 
 router = APIRouter(prefix="/api/runs", tags=["runs"], responses=errors(401))
 
@@ -187,7 +187,7 @@ def delete_run(run_id: RunId, store: StoreDep, settings: SettingsDep, _auth: Wri
     """Delete a run with everything it owns: queries (with their images), metrics, events, rollouts and its
     checkpoint files. A run a learner holds (starting, training) must be stopped first (409)."""
     store.delete_run(run_id=run_id)
-    # the run's checkpoint folder (learner/checkpoint_location.py: <RAQ_CHECKPOINT_URL>/run-<id>/)
+    # the run's checkpoint folder (contract/checkpoint_location.py: <RAQ_CHECKPOINT_URL>/run-<id>/)
     folder = run_folder(settings.resolved_checkpoint_url, run_id)
     if not is_remote(folder):
         shutil.rmtree(folder, ignore_errors=True)

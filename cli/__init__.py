@@ -10,7 +10,7 @@ import threading
 import time
 from collections.abc import Sequence
 
-from app.settings import Settings, get_settings
+from contract.settings import Settings, get_settings
 
 LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1"}
 
@@ -65,7 +65,7 @@ def cmd_learn(args: argparse.Namespace) -> int:
 
 def cmd_sessions(args: argparse.Namespace) -> int:
     """How many browsers are logged in; with --end-all, log every one of them out."""
-    from app.store import Store
+    from contract.store import Store
 
     settings = get_settings()
     _migrate(settings)
@@ -113,7 +113,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         from app.demo import ensure_demo_run
 
         ensure_demo_run(settings)
-    raq = [sys.executable, "-m", "app.cli"]
+    raq = [sys.executable, "-m", "cli"]
     serve = raq + ["serve"] + (["--port", str(args.port)] if args.port else [])
     # Own process groups: a terminal's Ctrl-C reaches only this process, which then asks each child once.
     spawn = {"stdout": subprocess.PIPE, "stderr": subprocess.STDOUT, "text": True, "bufsize": 1, "process_group": 0}

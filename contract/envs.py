@@ -63,7 +63,7 @@ class EnvNotAllowed(ValueError):
 
 def allowed_env_modules() -> tuple[str, ...]:
     """RAQ_ENV_MODULES, read like every other setting (the learner has no other channel from the operator)."""
-    from app.settings import get_settings  # noqa: PLC0415 - settings are read when an env is made, not at import
+    from contract.settings import get_settings  # noqa: PLC0415 - settings are read when an env is made, not at import
 
     return get_settings().env_modules
 

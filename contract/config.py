@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin, get_type_hints
 
-from learner.algorithms import ALGORITHMS
+from contract.algorithms import ALGORITHMS
 
 SEED_MAX = 2**31 - 1  # the runs.seed column (INTEGER: 32-bit on PostgreSQL); numpy and torch take any of these
 # Upper bounds of the integer fields (lower bounds in TrainConfig.validation_errors): what one learner can do
@@ -63,7 +63,7 @@ class TrainConfig:
     env_id: str = "VisualPusher-v0"
     """Gymnasium id, or "module:EnvId" with a module in RAQ_ENV_MODULES, of an env with RGB image observations."""
     algorithm: str = "vice_raq"
-    """Reward method, one of learner.algorithms.ALGORITHM_SPECS: vice_raq, vice, raq, naive_classifier, sparse."""
+    """Reward method, one of contract.algorithms.ALGORITHM_SPECS: vice_raq, vice, raq, naive_classifier, sparse."""
     seed: int = 0
     """Seed for torch, numpy and the env (0 to 2**31 - 1)."""
     image_size: int = 48

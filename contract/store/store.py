@@ -14,9 +14,9 @@ from sqlalchemy import bindparam, delete, func, insert, or_, select, text, type_
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm.attributes import set_committed_value
 
-from app.store.db import Database
-from app.store.errors import Conflict, InvalidInput, NotFound
-from app.store.models import (
+from contract.store.db import Database
+from contract.store.errors import Conflict, InvalidInput, NotFound
+from contract.store.models import (
     INT64_MAX,
     AnswerCounter,
     Event,

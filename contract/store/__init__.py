@@ -1,7 +1,7 @@
 """The store the learner and the server share: models and keyword-only functions, no torch, no FastAPI."""
 
-from app.store.errors import Conflict, InvalidInput, NotFound, StoreError
-from app.store.models import (
+from contract.store.errors import Conflict, InvalidInput, NotFound, StoreError
+from contract.store.models import (
     INT32_MAX,
     INT64_MAX,
     GoalExample,
@@ -16,7 +16,7 @@ from app.store.models import (
     RunPhase,
     RunStatus,
 )
-from app.store.store import AnsweredQuery, GoalImage, Store, seconds_since
+from contract.store.store import AnsweredQuery, GoalImage, Store, seconds_since
 
 __all__ = [
     "INT32_MAX",

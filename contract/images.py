@@ -10,6 +10,7 @@ import io
 import warnings
 from dataclasses import dataclass
 
+import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
 ACCEPTED_FORMATS: dict[str, str] = {
@@ -105,10 +106,24 @@ def _png_bytes(image: Image.Image) -> bytes:
     return buffer.getvalue()
 
 
-def to_png(image: Image.Image, size: int) -> bytes:
-    """The model's view: centre-crop to a square, resize to size x size (area filter), PNG."""
+def model_view(image: Image.Image, size: int) -> Image.Image:
+    """What the networks see of a picture: centre-cropped to a square, resized to size x size (area filter)."""
     square = center_square(image.convert("RGB"))
-    return _png_bytes(square.resize((size, size), Image.Resampling.LANCZOS, reducing_gap=3.0))
+    return square.resize((size, size), Image.Resampling.LANCZOS, reducing_gap=3.0)
+
+
+def to_png(image: Image.Image, size: int) -> bytes:
+    """The model's view (model_view) as PNG."""
+    return _png_bytes(model_view(image, size))
+
+
+def model_array(original: bytes, size: int) -> np.ndarray:
+    """The model's view, (size, size, 3) uint8, of an upload that was accepted before (upright, transparency
+    flattened onto white, as prepare_upload makes its model copy)."""
+    with Image.open(io.BytesIO(original)) as opened:
+        opened.load()
+        image = ImageOps.exif_transpose(opened)
+    return np.asarray(model_view(_to_rgb(image), size))
 
 
 def to_display_png(image: Image.Image, max_side: int = DISPLAY_MAX_SIDE) -> bytes:
@@ -135,3 +150,9 @@ def prepare_upload(data: bytes, *, filename: str, model_size: int, max_bytes: in
         model_png=to_png(image, model_size),
         display_png=to_display_png(image),
     )
+
+
+def decoded_array(data: bytes) -> np.ndarray:
+    """Stored PNG (or other image) bytes as (height, width, 3) uint8 RGB, at the size they were stored."""
+    with Image.open(io.BytesIO(data)) as image:
+        return np.array(image.convert("RGB"))
