@@ -215,6 +215,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     return args.handler(args)
 
-
-if __name__ == "__main__":
-    sys.exit(main())
