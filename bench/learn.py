@@ -188,7 +188,7 @@ def main() -> int:
     parser.add_argument("--total-steps", type=int, default=100_000)
     parser.add_argument(
         "--task-settings", action="store_true",
-        help="start from the settings the task was measured to learn with (contract.envs.SIM_TASK_SETTINGS, the New "
+        help="start from the task preset (sim.PRESETS, the New "
         "run form's); --query-every, --query-budget and --set still win",
     )  # fmt: skip
     parser.add_argument("--query-every", type=int, default=None, help="default: TrainConfig's (5000)")

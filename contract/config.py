@@ -1,4 +1,5 @@
-"""The one training configuration, stored as JSON with every run.
+"""The one training configuration, stored as JSON with every run, defined in parts: the task, the method (SAC,
+networks, classifier, queries), evaluation, and how the run executes.
 
 This module imports neither torch nor the store, so the web app can validate a run's config with it.
 """
@@ -57,13 +58,11 @@ def _choice_fields() -> dict[str, tuple[Any, ...]]:
 
 
 @dataclass
-class TrainConfig:
-    """Everything that defines a training run (the paper's settings unless a field says otherwise)."""
+class TaskConfig:
+    """What task a run learns: the env, its seed and length."""
 
     env_id: str = "VisualPusher-v0"
     """Gymnasium id, or "module:EnvId" with a module in RAQ_ENV_MODULES, of an env with RGB image observations."""
-    algorithm: str = "vice_raq"
-    """Reward method, one of contract.algorithms.ALGORITHM_SPECS: vice_raq, vice, raq, naive_classifier, sparse."""
     seed: int = 0
     """Seed for torch, numpy and the env (0 to 2**31 - 1)."""
     image_size: int = 48
@@ -73,7 +72,11 @@ class TrainConfig:
     episode_steps: int = 100
     """Episode length (the registered time limit); no terminal on success."""
 
-    # --- soft actor-critic (Haarnoja et al. 2018; the paper's "untuned" defaults)
+
+@dataclass
+class SACConfig:
+    """Soft actor-critic (Haarnoja et al. 2018; the paper's "untuned" defaults)."""
+
     batch_size: int = 256
     """SAC minibatch size."""
     actor_lr: float = 3e-4
@@ -92,17 +95,16 @@ class TrainConfig:
     """Target policy entropy; None means -dim(A)."""
     initial_random_steps: int = 1000
     """Uniform random actions before the policy acts (and before updates start)."""
-    num_envs: int = 1
-    """Training envs in lockstep: the policy acts for all in one batch; each env step is one loop step."""
-    env_processes: bool = False
-    """Each training env in a worker process of its own, the batch's envs stepped at once on as many cores (for
-    num_envs > 1 where cores are spare, as on a GPU host); False: one after another on the loop's thread."""
     updates_per_step: int = 1
     """Gradient steps per environment step."""
     replay_capacity: int = 200_000
     """Replay buffer size in transitions (large enough that nothing is evicted in a normal run)."""
 
-    # --- networks
+
+@dataclass
+class NetworkConfig:
+    """The conv encoder and the fully connected layers of every network."""
+
     conv_filters: int = 8
     """Filters of each of the two 5x5 conv layers (8 in simulation, 32 on the real robot)."""
     hidden_dim: int = 256
@@ -115,21 +117,12 @@ class TrainConfig:
     """Shared encoder only: Linear + LayerNorm + tanh of the conv features to this size (SAC-AE, DrQ); 0: none."""
     augmentation: Literal["none", "random_shift"] = "random_shift"
     """Image augmentation for SAC updates: DrQ's random shift by up to 4 pixels (scaled to image size)."""
-    precision: Literal["auto", "fp32", "bf16"] = "auto"
-    """Autocast dtype of every network (SAC and f_psi); bf16 also hands them bf16 images; auto: bf16 where faster."""
-    device: str = "cpu"
-    """Torch device: "cpu", "cuda" or "cuda:N", a GPU this host has."""
-    compile_updates: bool = False
-    """Device pipeline only: torch.compile the update and the classifier step before graph capture."""
-    replay_pipeline: Literal["auto", "host", "device"] = "auto"
-    """Batches sampled and rewarded on the host (numpy, cached f_psi) or device (CUDA graphs); auto: GPU."""
-    update_thread: Literal["auto", "on", "off"] = "auto"
-    """SAC updates on a second thread while the envs step (MuJoCo leaves the GIL); auto: on unless on a GPU."""
-    classifier_beside_updates: bool = False
-    """With the update thread, host pipeline: an epoch's classifier steps one per env step beside the SAC updates on
-    a copy of f_psi, published when done (rewards lag classifier_steps env steps; R 0.91, not 0.86); False: at once."""
 
-    # --- reward classifier f_psi
+
+@dataclass
+class ClassifierConfig:
+    """The reward classifier f_psi (Sec. IV, Alg. 2)."""
+
     classifier_lr: float = 3e-4
     """Adam learning rate of the reward classifier (the paper's code: 1e-4; its appendix: 3e-4)."""
     classifier_batch_size: int = 128
@@ -147,15 +140,28 @@ class TrainConfig:
     raq_initial_negatives: int = 2000
     """raq / naive_classifier: observations from the first epoch kept as negatives."""
 
-    # --- active queries
+
+@dataclass
+class QueryConfig:
+    """Active queries: which observation is asked about, how often, how many (Sec. IV-A)."""
+
     query_every: int = 5000
     """Environment steps between active queries (the paper: pusher 25K, door 10K, picker 1K)."""
     query_budget: int = 20
     """Queries a run may ask in all; asking stops when it is spent."""
     query_strategy: Literal["argmax", "entropy"] = "argmax"
     """argmax: highest f_psi since the last query (the paper); entropy: the least certain one."""
+    query_candidates: int = 32
+    """Best-scoring observations since the last query kept with their display render; the query is the best of them."""
+    query_score_batch: int = 64
+    """Observations f_psi scores together as query candidates, for envs that can snapshot their state (the
+    simulated tasks; the display render of a kept one is taken from its snapshot); 1, or other envs: each at once."""
 
-    # --- evaluation and checkpoints
+
+@dataclass
+class EvaluationConfig:
+    """Evaluation, checkpoints and what is recorded for a person to look at."""
+
     eval_every: int = 1000
     """Environment steps between evaluations."""
     eval_episodes: int = 5
@@ -166,15 +172,48 @@ class TrainConfig:
     """Side of the larger render stored with each query and rollout for a person to look at."""
     rollout_size: int = 128
     """Side of the frames of the evaluation rollout GIF."""
-    query_candidates: int = 32
-    """Best-scoring observations since the last query kept with their display render; the query is the best of them."""
-    query_score_batch: int = 64
-    """Observations f_psi scores together as query candidates, for envs that can snapshot their state (the
-    simulated tasks; the display render of a kept one is taken from its snapshot); 1, or other envs: each at once."""
     log_every: int = 250
     """Environment steps between training-metric records (answers are also read this often)."""
+
+
+@dataclass
+class ExecutionConfig:
+    """How the run executes on its host: device, precision, threads, pipelines, envs. None of it changes the method."""
+
+    device: str = "cpu"
+    """Torch device: "cpu", "cuda" or "cuda:N", a GPU this host has."""
+    precision: Literal["auto", "fp32", "bf16"] = "auto"
+    """Autocast dtype of every network (SAC and f_psi); bf16 also hands them bf16 images; auto: bf16 where faster."""
+    num_envs: int = 1
+    """Training envs in lockstep: the policy acts for all in one batch; each env step is one loop step."""
+    env_processes: bool = False
+    """Each training env in a worker process of its own, the batch's envs stepped at once on as many cores (for
+    num_envs > 1 where cores are spare, as on a GPU host); False: one after another on the loop's thread."""
+    compile_updates: bool = False
+    """Device pipeline only: torch.compile the update and the classifier step before graph capture."""
+    replay_pipeline: Literal["auto", "host", "device"] = "auto"
+    """Batches sampled and rewarded on the host (numpy, cached f_psi) or device (CUDA graphs); auto: GPU."""
+    update_thread: Literal["auto", "on", "off"] = "auto"
+    """SAC updates on a second thread while the envs step (MuJoCo leaves the GIL); auto: on unless on a GPU."""
+    classifier_beside_updates: bool = False
+    """With the update thread, host pipeline: an epoch's classifier steps one per env step beside the SAC updates on
+    a copy of f_psi, published when done (rewards lag classifier_steps env steps; R 0.91, not 0.86); False: at once."""
     heartbeat_seconds: float = 5.0
     """Seconds between heartbeats to the store (a stop request is noticed this quickly)."""
+
+
+@dataclass
+class MethodConfig(SACConfig, NetworkConfig, ClassifierConfig, QueryConfig):
+    """What the method is: the reward method of ALGORITHM_SPECS and its SAC, networks, classifier and queries."""
+
+    algorithm: str = "vice_raq"
+    """Reward method, one of contract.algorithms.ALGORITHM_SPECS: vice_raq, vice, raq, naive_classifier, sparse."""
+
+
+@dataclass
+class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
+    """Everything that defines a training run, stored as one flat JSON object (the paper's settings unless a field
+    says otherwise): the task it runs, the method, its evaluation, and how it executes."""
 
     def __post_init__(self) -> None:
         errors = self.validation_errors()
@@ -297,3 +336,19 @@ class TrainConfig:
             classifier_lr=1e-4,
         )  # fmt: skip
         return replace(faithful, **overrides)
+
+
+CONFIG_PARTS: dict[str, type] = {
+    "task": TaskConfig, "sac": SACConfig, "networks": NetworkConfig, "classifier": ClassifierConfig,
+    "queries": QueryConfig, "evaluation": EvaluationConfig, "execution": ExecutionConfig,
+}  # fmt: skip
+"""The parts of a TrainConfig, as the New run form and the docs group its fields (the method's: sac, networks,
+classifier and queries, with `algorithm`)."""
+
+
+def config_part(name: str) -> str:
+    """The part a TrainConfig field belongs to ("method" for `algorithm`)."""
+    for part, cls in CONFIG_PARTS.items():
+        if name in cls.__dataclass_fields__:
+            return part
+    return "method"

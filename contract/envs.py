@@ -21,37 +21,25 @@ import gymnasium as gym
 import numpy as np
 from PIL import Image
 
+import sim
+
 
 @dataclass(frozen=True)
 class TaskSettings:
-    """TrainConfig fields a simulated task was measured to learn with (every other field: its default)."""
+    """The training-config fields a simulated task starts from (sim.PRESETS; every other field: its default)."""
 
     fields: dict[str, int | float]
     """Field name -> value, as a run's config takes them."""
-    measured: str
-    """What the settings were measured to do, in one sentence (README: Settings per task)."""
+    results_page: str
+    """Where the docs show how well the task learns with them."""
 
 
 # The New run form fills these in when a task is picked; GET /api/envs lists them. A run created through the API
 # gets what it is sent, so an oracle or script passes them itself.
 SIM_TASK_SETTINGS: dict[str, TaskSettings] = {
-    "VisualPusher-v0": TaskSettings(
-        {"query_every": 5000, "query_budget": 20, "classifier_steps": 100},
-        "VICE-RAQ on the CPU reached 90% success within 30K env steps in 12 of 15 seeds (at 11K-28K, 2-5 queries; "
-        "two others 80% at best, one 0%), with 4 envs in lockstep in 8 of 12, and on an H100 with 4 envs in 7 of 9 "
-        "(at 16K-28K; seed 0 alone in 1.4 minutes); with 10 classifier steps per epoch seed 0 stayed at 0%.",
-    ),
-    "VisualDoor-v0": TaskSettings(
-        {"query_every": 1000, "query_budget": 300, "classifier_steps": 10, "no_answer_share": 0.25},
-        "VICE-RAQ reached 100% success at 27K env steps on seed 0 and at 57K on seed 2 (seed 1: not by 136K); asked "
-        "every 10K steps, or with 5 or 100 classifier steps per epoch, no run opened the door.",
-    ),
-    "VisualPicker-v0": TaskSettings(
-        {"query_every": 1000, "query_budget": 300, "classifier_steps": 100, "no_answer_share": 0.25},
-        "VICE-RAQ reached 80% success at 42K env steps on seed 2 with the no answers among the classifier's "
-        "negatives from the start, and at 51K on seed 0 with them switched on at 32K (without them no success in "
-        "75K); from the start, seed 0: 0% to 102K, seed 1: 0% to 141K.",
-    ),
+    env_id: TaskSettings(dict(fields), f"docs/results.md#{task}")
+    for task, env_id in sim.TASKS.items()
+    for fields in (sim.PRESETS[env_id],)
 }
 SIM_ENV_IDS = tuple(SIM_TASK_SETTINGS)
 ALWAYS_ALLOWED_MODULES = ("sim",)  # the project's own simulated tasks

@@ -1,11 +1,11 @@
 // New run page: POST /api/runs, show 422 errors beside the fields they name; fill in the settings a simulated
-// task was measured to learn with when it is picked.
+// task starts from when it is picked.
 import { api, describeDetail } from "/static/app.js";
 
 const CONFIG_FIELDS = ["total_steps", "query_every", "query_budget"];
 const edited = new Set(); // inputs changed by hand: a task's settings never overwrite them
 
-/** The task's measured settings (served by the page, learner.envs.SIM_TASK_SETTINGS) into the form: its fields
+/** The task's settings (served by the page, sim.PRESETS) into the form: its fields
  * with an input of their own there, the rest as the More settings JSON unless that was edited by hand. */
 function fillTaskSettings(form, taskSettings) {
   const envId = form.elements.env_id.value.trim();
@@ -36,7 +36,7 @@ function fillTaskSettings(form, taskSettings) {
   }
   if (!edited.has("extra_config")) extraInput.value = Object.keys(extra).length ? JSON.stringify(extra) : "";
   note.textContent =
-    `Filled in the settings ${envId} was measured to learn with: ${filled.join(", ")}. ${task.measured}` +
+    `Filled in the settings ${envId} starts from: ${filled.join(", ")} (how it learns with them: ${task.results_page}).` +
     (kept.length ? ` Kept what you set for ${kept.join(", ")}.` : "");
   note.classList.remove("hidden");
 }

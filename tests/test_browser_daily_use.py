@@ -185,7 +185,7 @@ def test_own_env_preview_crop_note_framing_and_classifier_return(
     expect(page.locator("#env-preview-text")).to_contain_text("(3,)")
     expect(page.locator("#env-preview-observation")).to_have_js_property("naturalWidth", 48)
     _shot(page, "14-07-new-run-preview")
-    # a simulated task fills in the settings it was measured to learn with; what was set by hand stays
+    # a simulated task fills in the settings it starts from; what was set by hand stays
     expect(page.locator("#query_every")).to_have_value("1000")
     expect(page.locator("#query_budget")).to_have_value("300")
     expect(page.locator("#task-settings-note")).to_contain_text("classifier_steps 10, no_answer_share 0.25")

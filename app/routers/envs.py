@@ -20,7 +20,7 @@ _preview_lock = threading.Lock()  # one env made at a time: rendering contexts a
 
 class TaskSettingsOut(BaseModel):
     fields: dict[str, int | float]
-    measured: str
+    results_page: str
 
 
 class EnvsOut(BaseModel):
@@ -28,7 +28,7 @@ class EnvsOut(BaseModel):
     registered: list[str]
     allowed_modules: list[str]
     task_settings: dict[str, TaskSettingsOut]
-    """Per simulated task: the config fields it was measured to learn with (the New run form fills them in)."""
+    """Per simulated task: the config fields a run of it starts from (the New run form fills them in)."""
 
 
 class EnvPreviewOut(BaseModel):
@@ -40,7 +40,7 @@ class EnvPreviewOut(BaseModel):
 
 @router.get("", response_model=EnvsOut)
 def list_envs(settings: SettingsDep, _auth: ReadAuth) -> EnvsOut:
-    """The simulated tasks with the settings each was measured to learn with, every registered Gymnasium id, and
+    """The simulated tasks with the settings a run of each starts from, every registered Gymnasium id, and
     the modules runs may name as `module:EnvId`."""
     return EnvsOut(
         simulated=list(SIM_ENV_IDS), registered=known_env_ids(), allowed_modules=list(settings.env_modules),
