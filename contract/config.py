@@ -23,7 +23,7 @@ INT_MAXIMA: dict[str, int] = {
     "naive_classifier_steps": 1_000_000, "raq_initial_negatives": 1_000_000, "query_every": 1_000_000_000,
     "query_budget": 100_000, "eval_every": 1_000_000_000, "eval_episodes": 1000, "checkpoint_every": 1_000_000_000,
     "display_size": 1024, "rollout_size": 512, "query_candidates": 1024, "query_score_batch": 4096,
-    "log_every": 1_000_000_000, "num_envs": 64,
+    "log_every": 1_000_000_000, "num_envs": 64, "n_step": 20,
 }  # fmt: skip
 FLOAT_MAXIMA: dict[str, float] = {
     "actor_lr": 1.0, "critic_lr": 1.0, "alpha_lr": 1.0, "classifier_lr": 1.0, "initial_alpha": 1e6,
@@ -97,6 +97,8 @@ class SACConfig:
     """Uniform random actions before the policy acts (and before updates start)."""
     updates_per_step: int = 1
     """Gradient steps per environment step."""
+    n_step: int = 1
+    """Steps of the return in the critic's target (DrQ-v2: 3), on the host pipeline; 1: SAC's one-step target."""
     replay_capacity: int = 200_000
     """Replay buffer size in transitions (large enough that nothing is evicted in a normal run)."""
 
@@ -228,7 +230,7 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
             "image_size", "total_steps", "episode_steps", "batch_size", "updates_per_step", "num_envs",
             "replay_capacity", "conv_filters", "hidden_dim", "classifier_batch_size", "epoch_steps", "query_every",
             "eval_every", "checkpoint_every", "display_size", "rollout_size", "query_candidates", "query_score_batch",
-            "log_every",
+            "log_every", "n_step",
         )  # fmt: skip
         for field in fields(self):
             value = getattr(self, field.name)

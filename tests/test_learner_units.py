@@ -577,3 +577,24 @@ def test_the_method_comparison_averages_seeds_where_all_evaluated_and_counts_who
     )  # a run stopped before its first evaluation: a row that says so
     with pytest.raises(SystemExit, match="cannot tell the method"):
         by_method([run("door-seed0", [0.0])], tmp_path / "x.png", "door")
+
+
+def test_n_step_chains_follow_one_episode_and_stop_at_its_end() -> None:
+    replay = ReplayBuffer(capacity=16, image_shape=(2, 2, 3), action_dim=1)
+    # two episodes of 3 steps: frames 0-1-2-3, then a reset to frame 4: 4-5-6-7
+    slots = [replay.add_frame(np.full((2, 2, 3), value, dtype=np.uint8)) for value in range(8)]
+    for start in (0, 4):
+        for step in range(3):
+            replay.add(slots[start + step], np.zeros(1, np.float32), slots[start + step + 1], False, None)
+    rng = np.random.default_rng(0)
+    batch, chains, weights = replay.n_step_sample(rng, 64, 0, n=3, stride=1, discount=0.5)
+    for first, chain, weight, next_obs, bootstrap in zip(
+        batch.indices, chains, weights, batch.next_obs, batch.not_done, strict=True
+    ):
+        left_in_episode = 3 - first % 3  # transitions 0-2 and 3-5 are the two episodes
+        steps = min(3, left_in_episode)
+        assert list(weight) == [0.5**k if k < steps else 0.0 for k in range(3)]
+        assert list(chain[:steps]) == [first + k for k in range(steps)]
+        assert next_obs[0, 0, 0] == slots[(first // 3) * 4 + first % 3 + steps]  # the chain's last s'
+        assert bootstrap == pytest.approx(0.5 ** (steps - 1))
+    assert {int(i) for i in batch.indices} == set(range(6))
