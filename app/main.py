@@ -14,7 +14,20 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
-from app.routers import compare, docs, envs, events, exports, goal_sets, health, metrics, pages, queries, runs
+from app.routers import (
+    compare,
+    docs,
+    envs,
+    events,
+    exports,
+    goal_sets,
+    health,
+    metrics,
+    pages,
+    queries,
+    reward_health,
+    runs,
+)  # fmt: skip
 from app.schemas import errors
 from app.security import RequestGuard
 from contract.settings import Settings, get_settings
@@ -100,6 +113,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(compare.router)
     app.include_router(goal_sets.router)
     app.include_router(metrics.router)
+    app.include_router(reward_health.router)
     app.include_router(events.router)
     app.include_router(envs.router)
     app.include_router(pages.router)

@@ -112,6 +112,17 @@ async function refreshRun() {
   renderRun(await api("GET", `/api/runs/${page.run.id}`));
 }
 
+/** The verdict on the reward's health (GET /api/runs/{id}/reward-health), shown once there is something to say. */
+async function refreshVerdict() {
+  const verdict = await api("GET", `/api/runs/${page.run.id}/reward-health`);
+  const panel = document.getElementById("reward-verdict");
+  document.getElementById("verdict-level").textContent = verdict.level;
+  document.getElementById("verdict-summary").textContent = verdict.summary;
+  document.getElementById("verdict-advice").textContent = verdict.advice;
+  panel.dataset.level = verdict.level;
+  panel.classList.toggle("hidden", verdict.level === "too early");
+}
+
 async function refreshMetrics() {
   // Ask from the last step again: metrics written later at that same step are merged, not missed.
   const since = page.lastStep >= 0 ? page.lastStep - 1 : -1;
@@ -214,4 +225,5 @@ document.addEventListener("DOMContentLoaded", () => {
   poll(refreshMetrics, 2000);
   poll(refreshQueries, 4000);
   poll(refreshEvents, 4000);
+  poll(refreshVerdict, 10000);
 });

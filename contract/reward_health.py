@@ -1,0 +1,105 @@
+"""A verdict on a run's reward, from what a real run measures: the person's answers to its questions (and what
+f_psi rated each asked state), f_psi's agreement with those answers, the trend of the classifier's return, and
+eval success where the env reports it.
+
+It says whether the run is learning, stuck, or too young to tell, and what to do about it. No torch, no store:
+the run page and the API hand it the run's recorded metrics and answered queries.
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+Level = Literal["learning", "stuck", "watch", "too early"]
+Series = Sequence[tuple[int, float]]
+"""(env step, value) pairs of one metric, oldest first."""
+
+RECENT_QUERIES = 10
+"""Answered questions the verdict looks back over."""
+MIN_QUERIES = 3
+"""Answered questions before the answers say anything."""
+LOW_AGREEMENT = 0.6
+"""f_psi's agreement with the answers below which the goal photos and the camera likely disagree."""
+FLAT_TREND = 0.05
+"""A classifier return that moved less than this share of its range over the recent half is flat."""
+
+
+@dataclass(frozen=True)
+class AnsweredQuestion:
+    """One answered question: f_psi's logit for the asked state when it was asked, and the person's answer."""
+
+    score: float
+    answer: bool
+
+
+@dataclass(frozen=True)
+class Verdict:
+    level: Level
+    """learning, stuck, watch (a warning sign), or too early to tell."""
+    summary: str
+    """What the measurements say, in one sentence."""
+    advice: str
+    """What to do about it ("" when nothing needs doing)."""
+
+
+def trend(series: Series) -> float:
+    """The mean of the recent half of a series minus that of the older half (0 for fewer than 4 points)."""
+    values = [value for _, value in series]
+    if len(values) < 4:
+        return 0.0
+    half = len(values) // 2
+    return sum(values[half:]) / (len(values) - half) - sum(values[:half]) / half
+
+
+def reward_verdict(
+    *, answered: Sequence[AnsweredQuestion], agreement: Series = (), classifier_return: Series = (),
+    success_rate: Series = (), target_success: float = 0.9,
+) -> Verdict:  # fmt: skip
+    """The verdict on a run's reward; `answered` oldest first, each series as the run recorded it."""
+    recent = list(answered)[-RECENT_QUERIES:]
+    yes = sum(question.answer for question in recent)
+    rated_success = sum(question.score > 0 for question in recent)
+    best_success = max((value for _, value in success_rate), default=None)
+    last_success = success_rate[-1][1] if success_rate else None
+
+    if last_success is not None and last_success >= target_success:
+        return Verdict("learning", f"eval success is {last_success:.0%}: the skill is learned.", "")
+    if len(recent) >= MIN_QUERIES and yes == 0 and rated_success >= 0.8 * len(recent):
+        return Verdict(
+            "stuck",
+            f"f_psi rated the last {len(recent)} asked states as successes and all were answered no: the policy is "
+            "exploiting the classifier.",
+            "Use the no answers as negatives (no_answer_share 0.25), ask more often (a lower query_every), and add "
+            "goal photos that show the finished task from the camera's view.",
+        )
+    if len(agreement) and len(answered) >= 2 * MIN_QUERIES and agreement[-1][1] < LOW_AGREEMENT:
+        return Verdict(
+            "stuck",
+            f"f_psi agrees with only {agreement[-1][1]:.0%} of your answers: it has learned something other than "
+            "what you call a success.",
+            "Check that the goal photos are framed like the camera's view (the goal set's Framing panel) and show "
+            "only successes; more goal photos (10 or more) help.",
+        )
+    if len(recent) >= MIN_QUERIES and yes == 0:
+        flat = _flat(classifier_return)
+        moving = "and the classifier's return is flat" if flat else "though the classifier's return still moves"
+        return Verdict(
+            "stuck" if flat and len(answered) >= RECENT_QUERIES else "watch",
+            f"none of the last {len(recent)} asked states was a success {moving}: the policy has not reached the "
+            "goal yet.",
+            "If it stays so, give goal photos closer to what the robot can reach, a longer run, or a scene reset "
+            "that starts nearer the goal.",
+        )
+    if best_success:
+        return Verdict("learning", f"eval success reached {best_success:.0%}: the reward leads toward the goal.", "")
+    if yes:
+        return Verdict("learning", f"{yes} of the last {len(recent)} asked states were successes.", "")
+    return Verdict("too early", "too few answers and evaluations yet to judge the reward.", "")
+
+
+def _flat(series: Series) -> bool:
+    values = [value for _, value in series]
+    if len(values) < 4:
+        return False
+    spread = max(values) - min(values)
+    return spread == 0 or abs(trend(series)) < FLAT_TREND * spread
