@@ -6,6 +6,8 @@ RUN apt-get update && apt-get install -y --no-install-recommends libegl1 libegl-
 WORKDIR /srv/vice-raq
 COPY pyproject.toml README.md alembic.ini ./
 COPY app app
+COPY cli cli
+COPY contract contract
 COPY learner learner
 COPY sim sim
 COPY migrations migrations

@@ -4,8 +4,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 # Debian packages. To run: Mesa for headless MuJoCo rendering (EGL and OSMesa). Only for the tests:
-# Chromium for browser tests, docker-compose to check docker-compose.yml (there is no Docker engine to run
-# it here), PostgreSQL for the tests of the store on PostgreSQL.
+# Chromium for browser tests, docker-compose to check docker-compose.yml (the check needs no Docker engine),
+# PostgreSQL for the tests of the store on PostgreSQL.
 RUN_PACKAGES := libegl1 libegl-mesa0 libgl1 libgles2 libosmesa6
 TEST_PACKAGES := chromium docker-compose postgresql
 export MUJOCO_GL ?= egl

@@ -1,10 +1,10 @@
 """The classifier schedule against the shape of f_psi, offline: a fresh f_psi per setting, trained on a run's replay.
 
-    python bench/classifier_schedule.py bench/out/door-vice_raq-seed0-v3/data/checkpoints/run-1/checkpoint.pt
+    python bench/classifier_schedule.py bench/out/door-vice_raq-seed0/data/checkpoints/run-1/checkpoint.pt
 
-Issue 11 asks for a sweep of the classifier's steps per epoch ({5, 10, 100}) and learning rate ({1e-4, 3e-4}) on
-the door before concluding (the paper found the door learned best with few steps). A learning run per setting
-costs hours; this asks the cheaper question the sweep rests on: which settings give f_psi a slope that SAC can
+A sweep of the classifier's steps per epoch ({5, 10, 100}) and learning rate ({1e-4, 3e-4}) on the door (the
+paper found the door learned best with few steps) costs hours as learning runs; this asks the cheaper question the
+sweep rests on: which settings give f_psi a slope that SAC can
 climb along the path to success (approach, hook, pull), and which only a step at the goal?
 
 For each setting it trains a fresh f_psi as the run would have, epoch by epoch (the first epoch untrained): epoch
@@ -56,7 +56,7 @@ def train(
     model.goals = positives
     rng = np.random.default_rng(seed + 1)
     asked = 0
-    for epoch in range(1, epochs):  # no training during the first epoch (original-implementation.md)
+    for epoch in range(1, epochs):  # no training during the first epoch (as in the paper's code)
         seen = min(len(replay), epoch * config.epoch_steps)
         while config.no_answer_share > 0 and asked + config.query_every <= seen:
             since = np.arange(asked, asked + config.query_every)

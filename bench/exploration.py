@@ -1,4 +1,4 @@
-"""How far random actions get in each simulated task: the exploration figures of `shared/reference/original-tasks.md`.
+"""How far random actions get in each simulated task (the exploration table of docs/design.md).
 
     MUJOCO_GL=egl python bench/exploration.py [--episodes 400] [--tasks door picker pusher]
 

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The GPU check, for a lent CUDA machine with no network (../shared/gpu/fetch-wheels.sh put the wheels in .whl/
-# and the EGL packages in .gl/; carry both). Writes what it measured under $OUT.
+# The GPU check, for a CUDA machine without network access: the project's wheels in .whl/ (`pip download` of the
+# project and its dependencies) and the EGL Debian packages in .gl/ (`apt-get download libegl1 libegl-mesa0 …`),
+# both copied beside the checkout. Writes what it measured under $OUT (docs/gpu.md).
 #
 #   bash bench/gpu_check.sh speed            learner_speed and loop_speed on cuda (about 3 minutes)
 #   bash bench/gpu_check.sh loop             loop_speed at 4 envs, as CUDA graphs and then torch.compile + CUDA graphs
@@ -10,19 +11,18 @@
 #   bash bench/gpu_check.sh pusher MINUTES   VICE-RAQ on the pusher (4 envs, stops at 90%) for each seed in SEEDS (default
 #                                            "3 4 5") side by side, each stopped after MINUTES
 #   bash bench/gpu_check.sh door-sweep MIN   the door's classifier sweep, 8 runs side by side: {5, 10, 100} steps
-#                                            per epoch x lr {1e-4, 3e-4} (issue 11; the paper: 5 steps was best),
-#                                            and 5 and 10 steps at 3e-4 with a query every 1,000 steps and the "no"
-#                                            answers as a quarter of the negatives (README: why the door gets
-#                                            no further)
-#   bash bench/gpu_check.sh lease SECONDS    one lease's whole check within SECONDS (default 540, the pip install
-#                                            counted): VICE-RAQ on the pusher alone on the machine (4 envs, seed 0,
-#                                            stops at 90% or after PUSHER_ALONE_MINUTES, default 3.5: issue 12's
-#                                            3-minute target), then the other pusher seeds side by side (PUSHER_SEEDS,
-#                                            default "1 2"; at most 3.5 minutes), then, alone and while time is left,
-#                                            learner_speed (CUDA graphs, compiled) and loop_speed at 4 envs stepped in
-#                                            turn and in worker processes; all comes back in 5 files
-#   bash bench/gpu_check.sh compare MINUTES  the paper's comparison on the pusher (issue 11): every reward method x
-#                                            seeds 0-2 side by side, to 30K env steps each or MINUTES, then
+#                                            per epoch x lr {1e-4, 3e-4} (the paper: 5 steps was best), and 5 and 10
+#                                            steps at 3e-4 with a query every 1,000 steps and the "no" answers as a
+#                                            quarter of the negatives (docs/design.md: the door's settings)
+#   bash bench/gpu_check.sh all SECONDS      the whole check within SECONDS (default 540, the pip install counted):
+#                                            VICE-RAQ on the pusher alone on the machine (4 envs, seed 0, stops at 90%
+#                                            or after PUSHER_ALONE_MINUTES, default 3.5: the time to 90% on a GPU),
+#                                            then the other pusher seeds side by side (PUSHER_SEEDS, default "1 2"; at
+#                                            most 3.5 minutes), then, alone and while time is left, learner_speed (CUDA
+#                                            graphs, compiled) and loop_speed at 4 envs stepped in turn and in worker
+#                                            processes; all comes back in 5 files
+#   bash bench/gpu_check.sh compare MINUTES  the paper's comparison on the pusher: every reward method x seeds 0-2
+#                                            side by side, to 30K env steps each or MINUTES, then
 #                                            bench/compare.py --by-method (METHODS, SEEDS: fewer, to try it)
 set -u
 phase=${1:-speed}
@@ -74,7 +74,7 @@ learn_run() {  # TASK SEED MINUTES: VICE-RAQ in the background with the settings
   python3 bench/learn.py --task "$task" --algorithm vice_raq --task-settings --seed "$seed" --max-minutes "$3" \
     --threads 2 --total-steps "$steps" "${extra[@]}" --out "$runs/$task-vice_raq-seed$seed" > "$logs/$task-seed$seed.txt" 2>&1 &
 }
-if [ "$phase" = lease ]; then
+if [ "$phase" = all ]; then
   deadline=$((SECONDS + ${2:-540}))  # (bash's SECONDS counts from the script's start, the install included)
   left() { echo $((deadline - SECONDS)); }
   learn_run pusher 0 "${PUSHER_ALONE_MINUTES:-3.5}"  # alone: the pusher's time to 90% with the machine to itself

@@ -1,6 +1,6 @@
 """Does a run's learned reward f_psi lead toward success? f_psi against the distance to the goal, from a checkpoint.
 
-    MUJOCO_GL=egl python bench/reward_shape.py bench/out/door-vice_raq-seed0-v3/data/checkpoints/run-1/checkpoint.pt
+    MUJOCO_GL=egl python bench/reward_shape.py bench/out/door-vice_raq-seed0/data/checkpoints/run-1/checkpoint.pt
 
 Plays `--episodes` episodes each of the scripted controller (which succeeds), the run's own policy (deterministic)
 and uniformly random actions on the run's task, scores every observation with the checkpoint's f_psi, and prints

@@ -1,4 +1,4 @@
-"""runs: priority, queued_at, archived, phase (issue 14: runs side by side, archive, honest progress)
+"""runs: priority, queued_at, archived, phase (runs side by side, archive, the run's phase)
 
 Revision ID: 0003_run_priority
 Revises: 0002
