@@ -105,6 +105,24 @@ def default_learners(cores: int | None = None) -> int:
     return max(1, cores // 2)
 
 
+class LearnerRestarts:
+    """When to start an exited learner again: at once the first time, then after 1, 2, 4 … 30 s while it keeps
+    exiting within a minute of its start (a learner that cannot start is not restarted in a tight loop)."""
+
+    def __init__(self) -> None:
+        self.pause, self.exited_at, self.started_at = 0.0, None, time.monotonic()
+
+    def due(self) -> bool:
+        now = time.monotonic()
+        if self.exited_at is None:
+            self.exited_at = now
+            self.pause = 0.0 if now - self.started_at > 60 else min(max(2 * self.pause, 1.0), 30.0)
+        if now - self.exited_at < self.pause:
+            return False
+        self.exited_at, self.started_at = None, now
+        return True
+
+
 def cmd_up(args: argparse.Namespace) -> int:
     """The web server and N learner workers, their logs in one terminal; Ctrl-C stops them all."""
     settings = get_settings()
@@ -121,16 +139,20 @@ def cmd_up(args: argparse.Namespace) -> int:
     if learners < 1:
         print("raq up: --learners must be at least 1", file=sys.stderr)
         return 2
-    children = {"web    ": subprocess.Popen(serve, **spawn)}
+    children: dict[str, subprocess.Popen] = {}
     learner_env = dict(os.environ)
     if learners > 1 and "OMP_NUM_THREADS" not in learner_env:  # share the cores instead of oversubscribing them
         learner_env["OMP_NUM_THREADS"] = str(max(1, (os.cpu_count() or 1) // learners))
-    for index in range(learners):
-        prefix = "learner" if learners == 1 else f"learn-{index + 1}"
-        children[prefix] = subprocess.Popen(raq + ["learn"], env=learner_env, **spawn)
     lock = threading.Lock()
-    for prefix, child in children.items():
+
+    def start(prefix: str, command: list[str], env: dict[str, str] | None = None) -> None:
+        children[prefix] = child = subprocess.Popen(command, env=env, **spawn)
         threading.Thread(target=_pump, args=(prefix, child.stdout, lock), daemon=True).start()
+
+    start("web    ", serve)
+    learner_names = ["learner" if learners == 1 else f"learn-{index + 1}" for index in range(learners)]
+    for prefix in learner_names:
+        start(prefix, raq + ["learn"], learner_env)
     port = args.port or settings.port
     print(f"raq up: web on http://{settings.host}:{port} and {learners} learner(s)  (Ctrl-C stops all)", flush=True)
 
@@ -142,13 +164,18 @@ def cmd_up(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
     code = 0
+    restarts = {prefix: LearnerRestarts() for prefix in learner_names}
     while not stopping.is_set():
-        exited = [(name, child.returncode) for name, child in children.items() if child.poll() is not None]
-        if exited:
-            name, code = exited[0]
-            print(f"raq up: {name.strip()} exited with code {code}; stopping the others", flush=True)
-            code = code or 1
+        web = children["web    "]
+        if web.poll() is not None:
+            code = web.returncode or 1
+            print(f"raq up: web exited with code {web.returncode}; stopping the learners", flush=True)
             break
+        for prefix in learner_names:
+            child = children[prefix]
+            if child.poll() is not None and restarts[prefix].due():
+                print(f"raq up: {prefix} exited with code {child.returncode}; starting it again", flush=True)
+                start(prefix, raq + ["learn"], learner_env)
         time.sleep(0.2)
     for child in children.values():
         if child.poll() is None:
@@ -214,4 +241,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     return args.handler(args)
-

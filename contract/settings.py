@@ -51,6 +51,11 @@ class Settings(BaseSettings):
     stale_heartbeat_seconds: float = Field(
         default=60.0, description="A training run whose heartbeat is older than this is reclaimed."
     )
+    database_patience_seconds: float = Field(
+        default=600.0, gt=0,
+        description="How long a learner waits out an unreachable database, retrying each call with backoff, before "
+        "it gives its run back to the queue (to resume from its last checkpoint once the database is back).",
+    )  # fmt: skip
 
     @field_validator("env_modules", mode="before")
     @classmethod

@@ -20,7 +20,8 @@ from contextlib import contextmanager
 from types import FrameType
 
 from contract.settings import Settings, get_settings
-from contract.store import NotFound, RunStatus, Store
+from contract.store import NotFound, RunStatus, Store, first_line, is_transient
+from learner.patient_store import LONGEST_PAUSE_S, patient
 from learner.train import Outcome, train_run
 
 logger = logging.getLogger(__name__)
@@ -46,17 +47,6 @@ def _interrupt_on_signals(interrupt: threading.Event) -> Iterator[None]:
             signal.signal(signum, old)  # type: ignore[arg-type]
 
 
-# SQLAlchemy ends its messages with "[SQL: …]", "[parameters: …]" and "(Background on this error at: …)" lines.
-_FOOTER_PREFIXES = ("(Background on this error at:", "[SQL:", "[parameters:")
-
-
-def _last_line(error: BaseException) -> str:
-    """The error's type and message as one line: its last line, skipping SQLAlchemy's footer lines."""
-    lines = [line for line in "".join(traceback.format_exception_only(error)).strip().splitlines() if line.strip()]
-    lines = [line for line in lines if not line.strip().startswith(_FOOTER_PREFIXES)] or lines
-    return lines[-1] if lines else type(error).__name__
-
-
 def work(
     settings: Settings,
     *,
@@ -69,11 +59,18 @@ def work(
     0, or 1 when (with once=True) the run failed."""
     worker = worker_name or f"{socket.gethostname()}-{os.getpid()}"
     interrupt = interrupt or threading.Event()
-    store = Store(settings.resolved_database_url)
+    store = patient(Store(settings.resolved_database_url), patience=settings.database_patience_seconds)
     try:
         with _interrupt_on_signals(interrupt):
             while not interrupt.is_set():
-                run = store.claim_next_run(worker=worker, stale_after_seconds=settings.stale_heartbeat_seconds)
+                try:
+                    run = store.claim_next_run(worker=worker, stale_after_seconds=settings.stale_heartbeat_seconds)
+                except Exception as error:
+                    if not is_transient(error):
+                        raise
+                    logger.warning("the database is still away (%s); looking again", first_line(error))
+                    interrupt.wait(poll_seconds)
+                    continue
                 if run is None:
                     if once:
                         return 0
@@ -89,21 +86,45 @@ def work(
 
 
 def _train_one(store: Store, run_id: int, settings: Settings, worker: str, interrupt: threading.Event) -> bool:
-    """Train one claimed run; a failure marks it failed with the error's last line. Returns True if it failed."""
+    """Train one claimed run; a failure marks it failed with the error's first line. A database away for longer
+    than the store's patience is not a failure: the run goes back to the queue. Returns True if it failed."""
     try:
         run = store.get_run(run_id=run_id)
         outcome = train_run(
             store, run, checkpoint_url=settings.resolved_checkpoint_url, worker=worker, interrupt=interrupt
         )
     except Exception as error:
-        reason = _last_line(error)
+        if is_transient(error):
+            logger.warning("run %s: the database stayed away (%s); the run goes back to the queue", run_id,
+                           first_line(error))  # fmt: skip
+            _give_back(store, run_id, worker, interrupt)
+            return False
+        reason = first_line(error)
         logger.exception("run %s failed: %s", run_id, reason)
-        store.record_event(run_id=run_id, level="error", message="".join(traceback.format_exception(error))[-4000:])
-        with contextlib.suppress(NotFound):  # the run was taken from this worker meanwhile
-            store.set_run_status(run_id=run_id, status=RunStatus.FAILED, reason=reason, worker=worker)
+        try:
+            store.record_event(run_id=run_id, level="error", message="".join(traceback.format_exception(error))[-4000:])
+            with contextlib.suppress(NotFound):  # the run was taken from this worker meanwhile
+                store.set_run_status(run_id=run_id, status=RunStatus.FAILED, reason=reason, worker=worker)
+        except Exception as report_error:  # the database went away as well: the run is reclaimed when it is back
+            if not is_transient(report_error):
+                raise
+            logger.warning("run %s: could not record the failure (%s)", run_id, first_line(report_error))
         return True
     logger.info("run %s: %s", run_id, outcome)
     return outcome not in (Outcome.FINISHED, Outcome.STOPPED, Outcome.REQUEUED, Outcome.LOST)
+
+
+def _give_back(store: Store, run_id: int, worker: str, interrupt: threading.Event) -> None:
+    """Queue the run again once the database answers (it resumes from its last checkpoint); until then, wait."""
+    while not interrupt.is_set():
+        try:
+            with contextlib.suppress(NotFound):  # another learner reclaimed it meanwhile
+                store.set_run_status(run_id=run_id, status=RunStatus.QUEUED, reason="", worker=worker)
+            return
+        except Exception as error:
+            if not is_transient(error):
+                raise
+            interrupt.wait(LONGEST_PAUSE_S)
 
 
 def main(argv: list[str] | None = None) -> int:

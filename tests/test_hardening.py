@@ -18,9 +18,9 @@ from fastapi.testclient import TestClient
 from contract import envs
 from contract.config import host_cuda_devices
 from contract.settings import Settings
-from contract.store import INT64_MAX, LoginFailure, Query, Store
+from contract.store import INT64_MAX, LoginFailure, Query, Store, first_line
 from contract.store.models import utcnow
-from learner.worker import _last_line, work
+from learner.worker import work
 
 TOKEN = "hardening-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -435,13 +435,13 @@ def test_a_failure_reason_names_the_error_not_sqlalchemys_footer(tmp_path) -> No
     engine = sa.create_engine(f"sqlite:///{tmp_path / 'x.sqlite3'}")
     try:
         with engine.connect() as connection:
-            connection.execute(sa.text("SELECT * FROM no_such_table"))
+            connection.execute(sa.text("SELECT *\nFROM no_such_table\nWHERE id = :id"), {"id": 1})
     except sa.exc.OperationalError as error:
-        reason = _last_line(error)
+        reason = first_line(error)
     engine.dispose()
-    assert "Background on this error" not in reason
-    assert reason == "sqlalchemy.exc.OperationalError: (sqlite3.OperationalError) no such table: no_such_table"
-    assert _last_line(ValueError("bad\nthing")) == "thing"
+    assert "Background on this error" not in reason and "WHERE" not in reason
+    assert reason == "OperationalError: (sqlite3.OperationalError) no such table: no_such_table"
+    assert first_line(ValueError("bad\nthing")) == "ValueError: bad"
 
 
 def _median_ms(client, url: str, repeats: int = 15) -> float:  # type: ignore[no-untyped-def]

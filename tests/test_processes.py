@@ -106,3 +106,42 @@ def test_raq_serve_with_two_workers_shares_the_login_limit_between_its_processes
         os.killpg(process.pid, signal.SIGINT)
         process.wait(timeout=60)
         log.close()
+
+
+def learner_processes(supervisor: int) -> list[int]:
+    """`raq learn` children of `raq up`."""
+    children = subprocess.run(["pgrep", "-P", str(supervisor)], capture_output=True, text=True).stdout.split()
+    return [int(pid) for pid in children if b"learn" in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")]
+
+
+def test_raq_up_starts_a_learner_that_exits_again_and_keeps_the_server(tmp_path: Path) -> None:
+    port = free_port()
+    env = {**os.environ, "RAQ_DATA_DIR": str(tmp_path), "RAQ_PORT": str(port), "PYTHONUNBUFFERED": "1"}
+    env.pop("RAQ_DATABASE_URL", None)
+    env.pop("DATABASE_URL", None)
+    log = (tmp_path / "up.log").open("w")
+    process = subprocess.Popen(
+        [sys.executable, "-m", "cli", "up", "--learners", "1"], env=env, stdout=log, stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )  # fmt: skip
+    try:
+        wait_for_health(port, process)
+        deadline = time.monotonic() + 30
+        while not learner_processes(process.pid):
+            assert time.monotonic() < deadline, "no learner started"
+            time.sleep(0.2)
+        (first,) = learner_processes(process.pid)
+        os.kill(first, signal.SIGKILL)
+        deadline = time.monotonic() + 30
+        while not [pid for pid in learner_processes(process.pid) if pid != first]:
+            assert process.poll() is None, (tmp_path / "up.log").read_text()
+            assert time.monotonic() < deadline, "the learner was not started again"
+            time.sleep(0.2)
+        assert wait_for_health(port, process) == {"status": "ok", "database": "ok"}  # the server stayed up
+    finally:
+        os.killpg(process.pid, signal.SIGINT)
+        code = process.wait(timeout=60)
+        log.close()
+    output = (tmp_path / "up.log").read_text()
+    assert "learner exited with code -9; starting it again" in output, output
+    assert code == 0 and "raq up: stopped" in output

@@ -1,6 +1,6 @@
 """The store the learner and the server share: models and keyword-only functions, no torch, no FastAPI."""
 
-from contract.store.errors import Conflict, InvalidInput, NotFound, StoreError
+from contract.store.errors import Conflict, InvalidInput, NotFound, StoreError, first_line, is_transient
 from contract.store.models import (
     INT32_MAX,
     INT64_MAX,
@@ -19,6 +19,8 @@ from contract.store.models import (
 from contract.store.store import AnsweredQuery, GoalImage, Store, seconds_since
 
 __all__ = [
+    "first_line",
+    "is_transient",
     "INT32_MAX",
     "INT64_MAX",
     "LoginFailure",

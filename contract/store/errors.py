@@ -1,4 +1,7 @@
-"""Errors the store raises; the web app maps them to HTTP status codes (404, 409, 400)."""
+"""Errors the store raises; the web app maps them to HTTP status codes (404, 409, 400, and 503 for a database that
+is briefly away)."""
+
+from sqlalchemy import exc
 
 
 class StoreError(Exception):
@@ -15,3 +18,43 @@ class Conflict(StoreError):
 
 class InvalidInput(StoreError):
     pass
+
+
+# What a database says while it is briefly away: a restart or failover (the connection drops, or none can be made),
+# a full disk, or another writer holding SQLite's lock past the busy timeout. The request or step may succeed later.
+TRANSIENT_MESSAGES = (
+    "database or disk is full", "disk i/o error", "unable to open database file", "database is locked",
+    "server closed the connection", "connection refused", "terminating connection", "connection is closed",
+    "the database system is starting up", "the database system is shutting down", "could not connect",
+    "connection failed", "consuming input failed", "is the server running", "no space left on device",
+    "cannot connect", "connection timeout expired", "the connection is lost", "ssl connection has been closed",
+)  # fmt: skip
+
+
+def is_transient(error: BaseException) -> bool:
+    """Is `error` (or the error it wraps) a database that is briefly away, not a bad statement or bad data?"""
+    for current in _chain(error):
+        if isinstance(current, exc.DBAPIError) and current.connection_invalidated:
+            return True
+        if isinstance(current, exc.OperationalError | exc.InterfaceError | exc.DisconnectionError | exc.TimeoutError):
+            message = str(current).lower()
+            if any(text in message for text in TRANSIENT_MESSAGES):
+                return True
+        if isinstance(current, OSError) and current.errno in (28, 111, 104):  # ENOSPC, ECONNREFUSED, ECONNRESET
+            return True
+    return False
+
+
+def first_line(error: BaseException) -> str:
+    """The error's type and the first line of its message, as a failure reason a person can read."""
+    message = next((line.strip() for line in str(error).splitlines() if line.strip()), "")
+    return f"{type(error).__name__}: {message}" if message else type(error).__name__
+
+
+def _chain(error: BaseException) -> list[BaseException]:
+    seen: list[BaseException] = []
+    current: BaseException | None = error
+    while current is not None and current not in seen:
+        seen.append(current)
+        current = getattr(current, "orig", None) or current.__cause__ or current.__context__
+    return seen

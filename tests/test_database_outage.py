@@ -1,0 +1,188 @@
+"""A database that blinks is waited out: a real PostgreSQL restarted three times during a run, and a SQLite file
+whose disk fills and empties twice. The learner (`raq learn`) never exits before its run is done, the run
+finishes, every answer the server acknowledged is kept, and the server answers 503 (never another 5xx) while the
+database is away."""
+
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+from conftest import ROOT, run_live_server
+from pg_server import PostgresServer
+
+from app.migrate import upgrade
+from contract.config import TrainConfig
+from contract.store import RunStatus, Store
+from learner.testing_envs import add_dot_goals
+
+CONFIG = TrainConfig(
+    env_id="learner.testing_envs:DotReach-v0", algorithm="vice_raq", image_size=16, conv_filters=4, hidden_dim=32,
+    batch_size=16, classifier_batch_size=8, total_steps=1500, episode_steps=25, initial_random_steps=50,
+    epoch_steps=50, classifier_steps=2, query_every=50, query_budget=25, eval_every=500, eval_episodes=2,
+    checkpoint_every=500, log_every=50, display_size=32, rollout_size=16, replay_capacity=2000, heartbeat_seconds=0.2,
+    query_candidates=4,
+)  # fmt: skip
+
+
+class Labeller(threading.Thread):
+    """A person at the queue page, through the REST API: answers every pending question of the run (its ground
+    truth), polls the run and /health, and keeps every status code and every answer the server acknowledged."""
+
+    def __init__(self, url: str, run_id: int) -> None:
+        super().__init__(daemon=True)
+        self.url, self.run_id = url, run_id
+        self.statuses: list[int] = []
+        self.acknowledged: dict[int, bool] = {}
+        self.health_503 = 0
+        self.done = threading.Event()
+
+    def call(self, client: httpx.Client, method: str, path: str, **kwargs: object) -> httpx.Response | None:
+        try:
+            response = client.request(method, path, **kwargs)  # type: ignore[arg-type]
+        except httpx.TransportError:  # the server's own socket is never down; a slow answer is retried
+            return None
+        self.statuses.append(response.status_code)
+        return response
+
+    def run(self) -> None:
+        with httpx.Client(base_url=self.url, timeout=30) as client:
+            while not self.done.is_set():
+                pending = self.call(client, "GET", "/api/queries", params={"run_id": self.run_id, "status": "pending"})
+                for query in pending.json() if pending is not None and pending.status_code == 200 else []:
+                    answer = bool(query["ground_truth_success"])
+                    posted = self.call(client, "POST", f"/api/queries/{query['id']}/answer", json={"success": answer})
+                    if posted is not None and posted.status_code == 200:
+                        self.acknowledged[query["id"]] = answer
+                self.call(client, "GET", f"/api/runs/{self.run_id}")
+                health = self.call(client, "GET", "/health")
+                self.health_503 += health is not None and health.status_code == 503
+                time.sleep(0.05)
+
+
+def run_through_blinks(database_url: str, tmp_path: Path, blink: Callable[[], None], blinks: int) -> None:
+    upgrade(database_url)
+    store = Store(database_url)
+    goal_set_id = add_dot_goals(store)
+    run = store.create_run(
+        env_id=CONFIG.env_id, algorithm=CONFIG.algorithm, config=CONFIG.to_dict(), seed=0, goal_set_id=goal_set_id,
+        total_steps=CONFIG.total_steps,
+    )  # fmt: skip
+    data_dir = tmp_path / "learner"  # checkpoints off the database's disk
+    env = {key: value for key, value in os.environ.items() if not key.startswith("RAQ_")}
+    env.update(
+        RAQ_DATABASE_URL=database_url, RAQ_DATA_DIR=str(data_dir), RAQ_ENV_MODULES="learner.testing_envs",
+        OMP_NUM_THREADS="1", PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1",
+    )  # fmt: skip
+    log_path = tmp_path / "learner.log"
+    with (
+        run_live_server(database_url, tmp_path, {"RAQ_ENV_MODULES": "learner.testing_envs"}) as server,
+        log_path.open("w") as log,
+    ):
+        learner = subprocess.Popen(
+            [sys.executable, "-m", "cli", "learn", "--once", "--name", "patient"], cwd=ROOT, env=env, stdout=log,
+            stderr=subprocess.STDOUT,
+        )  # fmt: skip
+        labeller = Labeller(server.url, run.id)
+        labeller.start()
+        try:
+            blinked_at: list[int] = []
+            for index in range(blinks):
+                wait_until(lambda i=index: step_of(store, run.id) >= 150 + 300 * i, learner, log_path)
+                blink()
+                blinked_at.append(step_of(store, run.id))
+            wait_until(lambda: status_of(store, run.id) not in RunStatus.ACTIVE, learner, log_path, finished=True)
+            assert learner.wait(timeout=60) == 0, log_path.read_text()[-4000:]
+        finally:
+            labeller.done.set()
+            labeller.join(timeout=60)
+            if learner.poll() is None:
+                learner.kill()
+    final = store.get_run(run_id=run.id)
+    assert final.status == RunStatus.FINISHED and final.step == CONFIG.total_steps, final.status_reason
+    assert all(step < CONFIG.total_steps for step in blinked_at), blinked_at  # every blink came mid-run
+    assert "the database is away" in log_path.read_text()  # the learner did meet the outages
+    assert labeller.acknowledged, "no question was answered"
+    for query_id, answer in labeller.acknowledged.items():  # every acknowledged answer is kept, as given
+        query = store.get_query(query_id=query_id)
+        assert query.status == "answered" and query.answer == answer
+    assert {status for status in labeller.statuses if status >= 500} <= {503}, sorted(set(labeller.statuses))
+    assert 503 in labeller.statuses, "the server never said the database was away"
+    assert all(r.status not in (*RunStatus.ACTIVE, RunStatus.FAILED) for r in store.list_runs())
+    store.dispose()
+
+
+def step_of(store: Store, run_id: int) -> int:
+    try:
+        return int(store.get_run(run_id=run_id).step or 0)
+    except Exception:  # noqa: BLE001 - the database may be away at this moment
+        return -1
+
+
+def status_of(store: Store, run_id: int) -> str:
+    try:
+        return store.get_run(run_id=run_id).status
+    except Exception:  # noqa: BLE001 - the database may be away at this moment
+        return RunStatus.TRAINING
+
+
+def wait_until(
+    condition: Callable[[], bool], learner: subprocess.Popen, log_path: Path, *, finished: bool = False,
+    timeout: float = 400.0,
+) -> None:  # fmt: skip
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if not finished:
+            assert learner.poll() is None, f"the learner exited: {log_path.read_text()[-4000:]}"
+        assert time.monotonic() < deadline, f"timed out: {log_path.read_text()[-4000:]}"
+        time.sleep(0.1)
+
+
+@pytest.fixture
+def postgres() -> Iterator[PostgresServer]:
+    with PostgresServer.started() as server:
+        yield server
+
+
+@pytest.mark.slow
+def test_a_run_goes_on_through_three_postgresql_restarts(postgres: PostgresServer, tmp_path: Path) -> None:
+    run_through_blinks(postgres.url, tmp_path, postgres.restart, blinks=3)
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Iterator[Path]:
+    """A 64 MiB tmpfs of this test's own (mounted as root, which `make test` runs as)."""
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64m", "tmpfs", str(mount)], check=True)
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+
+
+def fill_then_empty(disk: Path, seconds: float = 4.0) -> None:
+    """Fill the disk to its last byte, keep it full for a while, then empty it."""
+    filler = disk / "filler"
+    with filler.open("wb", buffering=0) as file:
+        for size in (1 << 20, 1 << 16, 1 << 12, 1 << 9):
+            try:
+                while True:
+                    file.write(b"\0" * size)
+            except OSError:
+                pass
+    time.sleep(seconds)
+    filler.unlink()
+
+
+@pytest.mark.slow
+def test_a_run_goes_on_while_the_sqlite_disk_fills_and_empties(small_disk: Path, tmp_path: Path) -> None:
+    url = f"sqlite:///{small_disk / 'raq.sqlite3'}"
+    run_through_blinks(url, tmp_path, lambda: fill_then_empty(small_disk), blinks=2)
+    assert shutil.disk_usage(small_disk).free > 0
