@@ -1,4 +1,4 @@
-"""Issue 14, exports and the runs API additions, through the real app on a real SQLite file: metrics as CSV and as a
+"""Exports and the runs API additions, through the real app on a real SQLite file: metrics as CSV and as a
 TensorBoard event file, queries with answers and images as a zip, the rollout as a video, priority / archive /
 delete over HTTP, the env preview, and the server still without torch."""
 

@@ -1,4 +1,4 @@
-"""Issue 14 in Debian's Chromium against a real server and SQLite: why a queued run waits, priority, archive and
+"""Daily use in Debian's Chromium against a real server and SQLite: why a queued run waits, priority, archive and
 delete from the run page; /docs with every request outside the server refused; the runs, run and queue pages on a
 390-px phone screen; no 404 (favicon) and no Content-Security-Policy violation anywhere."""
 

@@ -1,4 +1,4 @@
-"""Issue 13, one test per finding: every bad request is a clear 4xx, the learner imports only the env modules
+"""Hardening, one test per finding: every bad request is a clear 4xx, the learner imports only the env modules
 its operator allows, a token guards reads too, and nothing reads a body it is about to refuse."""
 
 import socket

@@ -1,4 +1,4 @@
-"""Issue 14, runs side by side: priorities in the claim order, a lower-priority run yielding to a higher one at its
+"""Runs side by side: priorities in the claim order, a lower-priority run yielding to a higher one at its
 next checkpoint, why a queued run waits, archive and delete with everything a run owns, answers in the events."""
 
 import threading

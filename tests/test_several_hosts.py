@@ -1,4 +1,4 @@
-"""Learners on several hosts (issue 15), run for real on loopback: a PostgreSQL server and an S3 API server (moto's
+"""Learners on several hosts, run for real on loopback: a PostgreSQL server and an S3 API server (moto's
 server) started here on 127.0.0.1, learner processes with separate data dirs, checkpoints in the bucket.
 
 - checkpoints at an s3:// URL: written and read streamed, atomic (a writer killed mid-upload leaves the old one);
