@@ -52,7 +52,7 @@ def filled_replay(config: TrainConfig, transitions: int, rng: np.random.Generato
 
 
 def matmul_gflops(dtype: torch.dtype = torch.bfloat16, seconds: float = 2.0) -> float:
-    """Matmul throughput of this machine now in `dtype` (the issue measured 357 GFLOP/s bf16 peak on an idle 2-core
+    """Matmul throughput of this machine now in `dtype` (357 GFLOP/s bf16 peak on an idle 2-core
     VM with AVX512-BF16; a CPU with AVX2 only emulates bf16 at about 1 GFLOP/s): printed beside updates/s so that a
     slow moment of a shared machine, or a machine of another kind, shows as such."""
     a, b = torch.randn(1024, 1024).to(dtype), torch.randn(1024, 1024).to(dtype)
