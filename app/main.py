@@ -18,6 +18,7 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 from app.database_outage import database_outage, database_unavailable
 from app.routers import (
     compare,
+    config,
     docs,
     envs,
     events,
@@ -127,6 +128,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(reward_health.router)
     app.include_router(events.router)
     app.include_router(envs.router)
+    app.include_router(config.router)
     app.include_router(pages.router)
     app.include_router(docs.router)
     app.mount(docs.SWAGGER_UI_PREFIX, StaticFiles(directory=docs.SWAGGER_UI_DIR), name="swagger-ui")

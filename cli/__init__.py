@@ -1,4 +1,4 @@
-"""The `raq` command: serve, learn, up, oracle, goals, migrate, sessions."""
+"""The `raq` command: serve, learn, up, oracle, goals, migrate, sessions, config."""
 
 import argparse
 import logging
@@ -61,6 +61,14 @@ def cmd_learn(args: argparse.Namespace) -> int:
     print(f"learner: taking queued runs from {settings.resolved_database_url}", flush=True)
 
     return work(settings, worker_name=args.name, once=args.once)
+
+
+def cmd_config(_args: argparse.Namespace) -> int:
+    """Every field of a run's configuration by part, with its default, as markdown (docs/configuration.md)."""
+    from contract.config import reference_markdown
+
+    print(reference_markdown(), flush=True)
+    return 0
 
 
 def cmd_sessions(args: argparse.Namespace) -> int:
@@ -220,6 +228,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     migrate = commands.add_parser("migrate", help="apply database migrations")
     migrate.set_defaults(handler=cmd_migrate)
+
+    config = commands.add_parser("config", help="print every field of a run's configuration, with its default")
+    config.set_defaults(handler=cmd_config)
 
     sessions = commands.add_parser("sessions", help="count browser login sessions, or end them all")
     sessions.add_argument("--end-all", action="store_true", help="log every browser out now")

@@ -4,6 +4,7 @@ networks, classifier, queries), evaluation, and how the run executes.
 This module imports neither torch nor the store, so the web app can validate a run's config with it.
 """
 
+import ast
 import math
 import os
 import re
@@ -354,3 +355,46 @@ def config_part(name: str) -> str:
         if name in cls.__dataclass_fields__:
             return part
     return "method"
+
+
+def field_docs() -> dict[str, str]:
+    """Each TrainConfig field's one-line docstring, read from this module's source (the docstring under it)."""
+    tree = ast.parse(Path(__file__).read_text())
+    docs: dict[str, str] = {}
+    for node in tree.body:
+        if not isinstance(node, ast.ClassDef):
+            continue
+        for field, following in zip(node.body, node.body[1:], strict=False):
+            if (
+                isinstance(field, ast.AnnAssign) and isinstance(field.target, ast.Name)
+                and isinstance(following, ast.Expr) and isinstance(following.value, ast.Constant)
+            ):  # fmt: skip
+                docs[field.target.id] = " ".join(str(following.value.value).split())
+    return docs
+
+
+def config_reference() -> dict[str, list[tuple[str, Any, str]]]:
+    """Per part (CONFIG_PARTS, and "method" for `algorithm`): (field, default, what it is) of every field, in the
+    order the form, the API (GET /api/config) and docs/configuration.md show them."""
+    docs, defaults = field_docs(), TrainConfig()
+    parts: dict[str, list[tuple[str, Any, str]]] = {}
+    for field in fields(TrainConfig):
+        parts.setdefault(config_part(field.name), []).append(
+            (field.name, getattr(defaults, field.name), docs[field.name])
+        )
+    order = ["task", "method", *[part for part in CONFIG_PARTS if part != "task"]]
+    return {part: parts[part] for part in order if part in parts}
+
+
+def reference_markdown() -> str:
+    """docs/configuration.md: every field of a run's configuration by part, with its default (`raq config`)."""
+    lines = [
+        "# Run configuration", "",
+        "Every field of a run's configuration (`contract/config.py`), with its default. The New run form's",
+        "*More settings* and `config` in `POST /api/runs` take any of them. Made by `raq config`.", "",
+    ]  # fmt: skip
+    for part, entries in config_reference().items():
+        lines += [f"## {part}", "", "| field | default | what it is |", "| --- | --- | --- |"]
+        lines += [f"| `{name}` | `{default!r}` | {doc.replace('|', '/')} |" for name, default, doc in entries]
+        lines.append("")
+    return "\n".join(lines)

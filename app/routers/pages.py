@@ -27,7 +27,7 @@ from app.routers.envs import task_settings_out
 from app.routers.runs import list_run_outs, run_detail, run_out
 from app.schemas import GoalExampleOut, GoalSetOut
 from contract.algorithms import ALGORITHM_SPECS
-from contract.config import TrainConfig
+from contract.config import TrainConfig, config_reference
 from contract.envs import SIM_ENV_IDS, known_env_ids
 from contract.store import INT32_MAX, NotFound, QueryStatus, RunStatus
 
@@ -106,6 +106,7 @@ def new_run_page(request: Request, settings: SettingsDep, store: StoreDep, goal_
         goal_sets=goal_sets,
         selected_goal_set=goal_set,
         defaults=defaults,
+        config_reference=config_reference(),
         task_settings={env_id: task.model_dump() for env_id, task in task_settings_out().items()},
     )
 

@@ -1,0 +1,38 @@
+"""One definition of the run configuration: the form, the API, `raq config` and docs/configuration.md all show
+TrainConfig's fields, by part, with their defaults and docstrings."""
+
+import subprocess
+import sys
+from dataclasses import fields
+
+from conftest import ROOT
+from fastapi.testclient import TestClient
+
+from contract.config import CONFIG_PARTS, TrainConfig, config_part, field_docs
+
+
+def test_every_field_has_a_part_and_a_description() -> None:
+    docs = field_docs()
+    for field in fields(TrainConfig):
+        assert docs.get(field.name), f"{field.name} has no docstring"
+    assert config_part("device") == "execution" and config_part("n_step") == "sac"
+    assert config_part("env_id") == "task" and config_part("algorithm") == "method"
+    execution = {field.name for field in fields(CONFIG_PARTS["execution"])}
+    assert {"device", "precision", "num_envs", "replay_pipeline", "update_thread"} <= execution
+    assert not execution & {field.name for field in fields(CONFIG_PARTS["classifier"])}
+
+
+def test_the_docs_page_is_what_raq_config_prints() -> None:
+    printed = subprocess.run([sys.executable, "-m", "cli", "config"], cwd=ROOT, capture_output=True, text=True)
+    assert printed.returncode == 0, printed.stderr
+    assert (ROOT / "docs" / "configuration.md").read_text() == printed.stdout, "run: raq config > docs/configuration.md"
+
+
+def test_the_api_and_the_form_list_every_field(client: TestClient) -> None:
+    parts = client.get("/api/config").json()
+    listed = [entry["name"] for entries in parts.values() for entry in entries]
+    assert sorted(listed) == sorted(field.name for field in fields(TrainConfig))
+    batch = next(entry for entry in parts["sac"] if entry["name"] == "batch_size")
+    assert batch["default"] == TrainConfig().batch_size and batch["description"] == "SAC minibatch size."
+    page = client.get("/runs/new").text
+    assert 'id="config-reference"' in page and "<code>classifier_beside_updates</code>" in page
