@@ -368,7 +368,9 @@ class QueueItem(BaseModel):
 
     query: QueryOut | None
     pending: int = Field(description="Pending queries (of the run, or of all runs).")
-    pending_all_runs: int = Field(description="Pending queries of all runs.")
+    pending_all_runs: int = Field(
+        description="Pending queries of the live runs (queued, starting, training): the badge's count."
+    )
     run: RunOut | None
     goal_examples: list[GoalExampleOut]
 

@@ -16,6 +16,11 @@ export function isActive(run) {
   return (constants().active_statuses || []).includes(run.status);
 }
 
+/** Queued, starting or training: a run that will still use its answers (the badge counts only its questions). */
+export function isLive(run) {
+  return (constants().live_statuses || []).includes(run.status);
+}
+
 /** An element: el("a", {href: "/"}, "text", child); "class" sets the class name; null attributes are left out. */
 export function el(tag, attributes = {}, ...children) {
   const element = document.createElement(tag);

@@ -1,6 +1,6 @@
 // Runs page: the table, refreshed every 3 s from /api/runs.
 import {
-  api, el, fmtAge, fmtDuration, fmtPercent, fmtSteps, isActive, poll, setPendingBadge, statusPill,
+  api, el, fmtAge, fmtDuration, fmtPercent, fmtSteps, isActive, isLive, poll, setPendingBadge, statusPill,
 } from "/static/app.js";
 
 const selected = new Set();
@@ -67,7 +67,7 @@ function renderRuns(runs) {
     return;
   }
   body.replaceChildren(...runs.map(runRow));
-  setPendingBadge(runs.reduce((total, run) => total + run.queries.pending, 0));
+  setPendingBadge(runs.filter(isLive).reduce((total, run) => total + run.queries.pending, 0));
 }
 
 function updateCompareButton() {

@@ -69,11 +69,11 @@ def _page(request: Request, template: str, settings: Any, store: Any, status_cod
     base = {
         "auth_required": bool(settings.api_token),
         "authorised": authorised,
-        "pending_total": store.count_queries(status=QueryStatus.PENDING) if authorised else 0,
+        "pending_total": store.count_queries(status=QueryStatus.PENDING, live_runs=True) if authorised else 0,
         "path": request.url.path,
         "stale_after_seconds": settings.stale_heartbeat_seconds,
         # values the page scripts need from Python (static/app.js reads them), so they are not retyped there
-        "page_constants": {"active_statuses": list(RunStatus.ACTIVE)},
+        "page_constants": {"active_statuses": list(RunStatus.ACTIVE), "live_statuses": list(RunStatus.LIVE)},
     }
     return templates.TemplateResponse(request, template, {**base, **context}, status_code=status_code)
 

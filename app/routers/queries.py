@@ -38,8 +38,9 @@ async def list_queries(
 
 @router.get("/next", response_model=QueueItem, responses=errors(404))
 async def next_query(store: StoreDep, _auth: ReadAuth, run_id: RunFilter = None) -> QueueItem:
-    """The oldest pending query (of one run, or of all), its run and the run's goal photos: one indexed lookup
-    and two COUNTs, however many queries are pending."""
+    """The oldest pending query of one run, or of all runs the oldest of a live run (queued, starting, training)
+    before those of stopped, finished or failed runs; its run and the run's goal photos. `pending_all_runs`
+    counts only live runs' questions (the badge)."""
     return await run_in_threadpool(_queue_item, store, run_id)
 
 
@@ -47,8 +48,10 @@ def _queue_item(store: Store, run_id: int | None) -> QueueItem:
     if run_id is not None:
         store.get_run(run_id=run_id)
     query = store.next_pending_query(run_id=run_id)
-    pending_all_runs = store.count_queries(status=QueryStatus.PENDING)
-    pending = pending_all_runs if run_id is None else store.count_queries(run_id=run_id, status=QueryStatus.PENDING)
+    # the badge counts the questions of live runs (queued, starting, training); the all-runs queue shows theirs
+    # first and those of stopped, finished or failed runs after them, so its count includes those
+    pending_all_runs = store.count_queries(status=QueryStatus.PENDING, live_runs=True)
+    pending = store.count_queries(run_id=run_id, status=QueryStatus.PENDING)
     if query is None:
         run = store.get_run(run_id=run_id) if run_id is not None else None
         return QueueItem(

@@ -64,6 +64,9 @@ class RunStatus:
     FINISHED = "finished"
     FAILED = "failed"
     ACTIVE = (STARTING, TRAINING)
+    # Runs that will still use their answers: held by a learner or waiting for one (the answer queue puts their
+    # questions first, and the badge counts only theirs).
+    LIVE = (QUEUED, STARTING, TRAINING)
     ALL = (QUEUED, STARTING, TRAINING, STOPPED, FINISHED, FAILED)
 
 

@@ -582,20 +582,39 @@ class Store(Database):
         return self.list_queries(run_id=run_id, status=QueryStatus.PENDING, limit=limit, oldest_first=True)
 
     def next_pending_query(self, *, run_id: int | None = None) -> Query | None:
-        """The oldest pending query (of one run, or of all): one lookup in ix_queries_run_status / _status_id."""
-        statement = select(Query).where(Query.status == QueryStatus.PENDING)
-        if run_id is not None:
-            statement = statement.where(Query.run_id == run_id)
+        """The oldest pending query of one run; of all runs, the oldest of the live runs (queued, starting,
+        training) first, then the oldest of the others (stopped, finished, failed). One lookup in
+        ix_queries_run_status per live run, then one in ix_queries_status_id."""
+        pending = select(Query).where(Query.status == QueryStatus.PENDING)
         with self.reading() as session:
-            return session.scalars(statement.order_by(Query.id).limit(1)).first()
+            if run_id is not None:
+                return session.scalars(pending.where(Query.run_id == run_id).order_by(Query.id).limit(1)).first()
+            live = [
+                session.scalar(
+                    select(Query.id).where(Query.run_id == live_id, Query.status == QueryStatus.PENDING)
+                    .order_by(Query.id).limit(1)
+                )
+                for live_id in self._live_run_ids(session)
+            ]  # fmt: skip
+            live_ids = [query_id for query_id in live if query_id is not None]
+            if live_ids:
+                return session.get(Query, min(live_ids))
+            return session.scalars(pending.order_by(Query.id).limit(1)).first()
 
-    def count_queries(self, *, run_id: int | None = None, status: str | None = None) -> int:
-        """SELECT COUNT(*), answered from the (run_id, status) / (status, id) indexes."""
+    @staticmethod
+    def _live_run_ids(session: Any) -> list[int]:
+        return list(session.scalars(select(Run.id).where(Run.status.in_(RunStatus.LIVE))))
+
+    def count_queries(self, *, run_id: int | None = None, status: str | None = None, live_runs: bool = False) -> int:
+        """SELECT COUNT(*), answered from the (run_id, status) / (status, id) indexes; live_runs: only the queries
+        of runs that are queued, starting or training."""
         statement = select(func.count()).select_from(Query)
         if run_id is not None:
             statement = statement.where(Query.run_id == run_id)
         if status is not None:
             statement = statement.where(Query.status == status)
+        if live_runs:
+            statement = statement.where(Query.run_id.in_(select(Run.id).where(Run.status.in_(RunStatus.LIVE))))
         with self.reading() as session:
             return int(session.scalar(statement) or 0)
 

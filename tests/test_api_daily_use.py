@@ -1,0 +1,40 @@
+"""Daily use through the API: the answer queue puts live runs' questions first, goal sets know their task, run
+ids are never given twice, a finished run can be trained further, /compare without runs."""
+
+import re
+
+from conftest import image_bytes
+from fastapi.testclient import TestClient
+
+from contract.store import RunStatus, Store
+
+
+def _run(store: Store, name: str = "", **values: object) -> int:
+    return store.create_run(
+        env_id=str(values.pop("env_id", "VisualPusher-v0")), algorithm="vice_raq", config={}, total_steps=25_000,
+        name=name, **values,
+    ).id  # fmt: skip
+
+
+def _ask(store: Store, run_id: int) -> int:
+    image = image_bytes((48, 48))
+    return store.post_query(run_id=run_id, env_step=1000, model_png=image, display_png=image, score=1.0).id
+
+
+def test_the_queue_shows_live_runs_questions_first_and_the_badge_counts_only_theirs(
+    client: TestClient, store: Store
+) -> None:
+    stopped, live = _run(store, "stopped"), _run(store, "live")
+    old_question = _ask(store, stopped)  # asked first, by a run that was stopped afterwards
+    store.request_stop(run_id=stopped)
+    assert store.get_run(run_id=stopped).status == RunStatus.STOPPED
+    new_question = _ask(store, live)
+    item = client.get("/api/queries/next").json()
+    assert item["query"]["id"] == new_question and item["run"]["id"] == live
+    assert (item["pending"], item["pending_all_runs"]) == (2, 1)
+    badge = re.search(r'id="nav-pending"[^>]*>(\d+)<', client.get("/").text)
+    assert badge and badge.group(1) == "1"
+    # once the live run's question is answered, the stopped run's comes next
+    client.post(f"/api/queries/{new_question}/answer", json={"success": True})
+    item = client.get("/api/queries/next").json()
+    assert item["query"]["id"] == old_question and (item["pending"], item["pending_all_runs"]) == (1, 0)
