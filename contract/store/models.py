@@ -93,6 +93,8 @@ class GoalSet(Base):
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     name: Mapped[str] = mapped_column(String(200), unique=True)
     image_size: Mapped[int] = mapped_column(Integer, default=48)
+    # The task the set was made for ("Start a run with this set" opens it); None: made before sets knew theirs.
+    env_id: Mapped[str | None] = mapped_column(String(200))
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
@@ -114,6 +116,8 @@ class GoalExample(Base):
 
 class Run(Base):
     __tablename__ = "runs"
+    # a deleted run's id is never given again (migration 0007; PostgreSQL's sequences never go back anyway)
+    __table_args__ = {"sqlite_autoincrement": True}
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     name: Mapped[str] = mapped_column(String(200), default="")
