@@ -9,6 +9,7 @@ COPY app app
 COPY cli cli
 COPY contract contract
 COPY learner learner
+COPY robot robot
 COPY sim sim
 COPY migrations migrations
 COPY templates templates

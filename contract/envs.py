@@ -42,7 +42,7 @@ SIM_TASK_SETTINGS: dict[str, TaskSettings] = {
     for fields in (sim.PRESETS[env_id],)
 }
 SIM_ENV_IDS = tuple(SIM_TASK_SETTINGS)
-ALWAYS_ALLOWED_MODULES = ("sim",)  # the project's own simulated tasks
+ALWAYS_ALLOWED_MODULES = ("sim", "robot")  # the project's own simulated tasks and stand-in robot
 
 
 class EnvNotAllowed(ValueError):

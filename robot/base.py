@@ -1,0 +1,145 @@
+"""The contract between vice-raq and a robot: a Gymnasium env whose observation is the robot's camera.
+
+Subclass `RobotEnv` and write five methods: `read_camera`, `send_action`, `reset_scene`, `hold_safe` and,
+if the robot can tell, `read_success`. The base class does the rest the same way for every robot: actions are
+clipped to [-1, 1] and passed through your `limit_action` (workspace bounds, speed limits) before they reach the
+arm; the camera's frame is centre-cropped to a square and resized exactly as goal photos are
+(`contract.images.model_view`), so goals and observations look alike; `stop()` holds the arm safe and refuses
+further actions until the next `reset()`.
+"""
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from PIL import Image
+
+from contract.images import model_view
+
+
+class RobotStopped(RuntimeError):
+    """An action was sent after `stop()` and before the next `reset()`."""
+
+
+class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
+    """A real robot seen through one RGB camera.
+
+    ## Action space
+    `Box(-1, 1, (action_dim,), float32)`: what each dimension means is the subclass's (e.g. end-effector
+    displacements per control period). Values are clipped to [-1, 1], NaN becomes 0, and `limit_action` applies
+    the robot's own safety limits before `send_action` is called.
+
+    ## Observation space
+    `Box(0, 255, (image_size, image_size, 3), uint8)`: the camera's frame (any size), centre-cropped to a square
+    and resized with the same filter as the goal photos.
+
+    ## Rewards
+    Always 0: the reward is the learned classifier's.
+
+    ## Starting state
+    `reset()` calls `reset_scene()`: the arm goes to its start pose. With `needs_person_reset` True, a person
+    puts the scene back before the episode starts (the queue page's "Reset the scene, then press Ready").
+
+    ## Episode end
+    By the time limit given at registration (`max_episode_steps`); `terminated` is always False.
+    `info["success"]` is present when `read_success()` returns True or False.
+
+    ## Arguments
+    `image_size`: side of the observation in pixels (84 on a robot). `action_dim`: the action's size.
+    `display_size`: side of the view stored for a person (queries, rollouts).
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"]}
+    needs_person_reset: ClassVar[bool] = True
+    """A person must put the scene back before each episode."""
+    control_hz: ClassVar[float] = 5.0
+    """Steps per second the robot is driven at (the actor keeps this rate; the learner never makes it wait)."""
+
+    def __init__(self, *, action_dim: int, image_size: int = 84, display_size: int = 256) -> None:
+        if action_dim < 1 or image_size < 8 or display_size < 8:
+            raise ValueError("action_dim must be at least 1, image_size and display_size at least 8")
+        self.image_size, self.display_size = int(image_size), int(display_size)
+        self.action_space = spaces.Box(-1.0, 1.0, (action_dim,), np.float32)
+        self.observation_space = spaces.Box(0, 255, (self.image_size, self.image_size, 3), np.uint8)
+        self.render_mode = "rgb_array"
+        self.stopped = False
+        self.last_frame: np.ndarray | None = None
+
+    # ------------------------------------------------------------------ to write for your robot
+    def read_camera(self) -> np.ndarray:
+        """The camera's current frame: (height, width, 3) uint8 RGB, any size."""
+        raise NotImplementedError
+
+    def send_action(self, action: np.ndarray) -> None:
+        """Move the arm by `action` (already clipped to [-1, 1] and within `limit_action`'s limits)."""
+        raise NotImplementedError
+
+    def reset_scene(self) -> None:
+        """Bring the arm to its start pose (the objects are the person's when `needs_person_reset`)."""
+        raise NotImplementedError
+
+    def hold_safe(self) -> None:
+        """Stop the arm where it is and hold it safe (brakes, zero velocity, gripper as it is)."""
+        raise NotImplementedError
+
+    def read_success(self) -> bool | None:
+        """Whether the task is done now, if the robot can tell (a sensor, a marker); None: it cannot."""
+        return None
+
+    def limit_action(self, action: np.ndarray) -> np.ndarray:
+        """The robot's safety limits on an action in [-1, 1] (workspace box, speed); default: none beyond it."""
+        return action
+
+    # ------------------------------------------------------------------ the same for every robot
+    def observe(self, frame: np.ndarray) -> np.ndarray:
+        """A camera frame as the networks see it: centre square, image_size pixels, as goal photos are made."""
+        frame = np.asarray(frame)
+        if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
+            raise ValueError(f"the camera gave a {frame.dtype} frame of shape {frame.shape}; expected (H, W, 3) uint8")
+        return np.asarray(model_view(Image.fromarray(frame), self.image_size))
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        self.reset_scene()
+        self.stopped = False
+        return self._observation(), self._info()
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self.stopped:
+            raise RobotStopped("the robot was stopped: reset() before the next action")
+        action = np.nan_to_num(np.asarray(action, dtype=np.float32).reshape(self.action_space.shape), nan=0.0)
+        self.send_action(np.asarray(self.limit_action(np.clip(action, -1.0, 1.0)), dtype=np.float32))
+        return self._observation(), 0.0, False, False, self._info()
+
+    def stop(self) -> None:
+        """Hold the arm safe now; actions are refused until the next reset()."""
+        self.stopped = True
+        self.hold_safe()
+
+    def render(self) -> np.ndarray | None:
+        """The last camera frame, aspect kept, for a person (queries, rollouts, the live view)."""
+        frame = self.last_frame if self.last_frame is not None else self.read_camera()
+        image = Image.fromarray(frame)
+        image.thumbnail((self.display_size, self.display_size), Image.Resampling.LANCZOS)
+        return np.asarray(image)
+
+    def render_display(self) -> np.ndarray:
+        """The view stored with each query for a person: the camera's square, display_size pixels."""
+        frame = self.last_frame if self.last_frame is not None else self.read_camera()
+        return np.asarray(model_view(Image.fromarray(frame), self.display_size))
+
+    def close(self) -> None:
+        if not self.stopped:
+            self.stop()
+        super().close()
+
+    def _observation(self) -> np.ndarray:
+        self.last_frame = np.asarray(self.read_camera())
+        return self.observe(self.last_frame)
+
+    def _info(self) -> dict[str, Any]:
+        success = self.read_success()
+        return {} if success is None else {"success": float(success)}

@@ -1,0 +1,52 @@
+"""A camera over OpenCV's `cv2.VideoCapture`: a device index (0 for the first camera), a device path
+(/dev/video2), a stream URL (rtsp://…) or a video file (for tests and replays; `loop` starts it again at its end).
+
+    with OpenCVCamera(0, width=640, height=480) as camera:
+        frame = camera.read()  # (480, 640, 3) uint8 RGB
+"""
+
+import threading
+
+import cv2
+import numpy as np
+
+
+class CameraError(RuntimeError):
+    """The camera could not be opened, or gave no frame."""
+
+
+class OpenCVCamera:
+    def __init__(self, source: int | str, *, width: int | None = None, height: int | None = None,
+                 loop: bool = False) -> None:  # fmt: skip
+        self.source, self.loop = source, loop
+        self._lock = threading.Lock()  # the actor reads frames while the page's live view may read one too
+        self.capture = cv2.VideoCapture(source)
+        if not self.capture.isOpened():
+            raise CameraError(f"cannot open camera {source!r}")
+        if width:
+            self.capture.set(cv2.CAP_PROP_FRAME_WIDTH, width)
+        if height:
+            self.capture.set(cv2.CAP_PROP_FRAME_HEIGHT, height)
+
+    def read(self) -> np.ndarray:
+        """The next frame as (height, width, 3) uint8 RGB."""
+        with self._lock:
+            ok, frame = self.capture.read()
+            if not ok and self.loop:
+                self.capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
+                ok, frame = self.capture.read()
+        if not ok or frame is None:
+            raise CameraError(f"camera {self.source!r} gave no frame")
+        if frame.ndim == 2:
+            return cv2.cvtColor(frame, cv2.COLOR_GRAY2RGB)
+        return cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
+
+    def close(self) -> None:
+        with self._lock:
+            self.capture.release()
+
+    def __enter__(self) -> "OpenCVCamera":
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
