@@ -18,12 +18,12 @@ run: install
 	$(BIN)/raq up --demo
 
 test: test-packages install
-	$(BIN)/ruff check app cli contract learner robot sim tests bench
+	$(BIN)/ruff check app cli contract learner robot sim tests bench examples
 	@rm -f $(VENV)/pytest-exit-code
 	$(BIN)/python -m pytest $(PYTEST_ARGS); code=$$?; echo $$code > $(VENV)/pytest-exit-code; exit $$code
 
 lint: install
-	$(BIN)/ruff check app cli contract learner robot sim tests bench
+	$(BIN)/ruff check app cli contract learner robot sim tests bench examples
 
 install: run-packages $(STAMP)
 
