@@ -26,9 +26,10 @@ def png_bytes(pixels: np.ndarray) -> bytes:
 
 def add_simulated_goal_set(store: Store, *, task: str, name: str, count: int, image_size: int = 48) -> int:
     """Render `count` goal examples of a simulated task into a new goal set; returns its id."""
+    from sim import TASKS
     from sim.goals import make_goal_examples
 
-    goal_set = store.create_goal_set(name=name, image_size=image_size)
+    goal_set = store.create_goal_set(name=name, image_size=image_size, env_id=TASKS.get(task))
     for index, example in enumerate(make_goal_examples(task, count, seed=0, image_size=image_size)):
         display = png_bytes(example.display)
         store.add_goal_example(

@@ -61,7 +61,14 @@ class HealthOut(BaseModel):
 # ---------------------------------------------------------------- goal sets
 class GoalSetCreate(InputModel):
     name: Text = Field(min_length=1, max_length=200, examples=["pusher puck on target"])
-    image_size: int = Field(default=48, ge=8, le=512, description="Side of the model's square view in pixels.")
+    image_size: int = Field(
+        default=48, ge=8, le=512,
+        description="Side of the model's square view in pixels; a run with this set takes its image_size from here.",
+    )  # fmt: skip
+    env_id: Text | None = Field(
+        default=None, max_length=200, examples=["VisualPusher-v0"],
+        description="The task the photos show. A run of another task with this set is refused unless confirmed.",
+    )  # fmt: skip
 
 
 class GoalExampleOut(BaseModel):
@@ -112,6 +119,7 @@ class GoalSetOut(BaseModel):
     id: int
     name: str
     image_size: int
+    env_id: str | None = Field(description="The task the photos show (None: made before sets knew their task).")
     created_at: datetime
     example_count: int
 
@@ -121,6 +129,7 @@ class GoalSetOut(BaseModel):
             id=goal_set.id,
             name=goal_set.name,
             image_size=goal_set.image_size,
+            env_id=goal_set.env_id,
             created_at=goal_set.created_at,
             example_count=example_count,
         )
@@ -159,7 +168,13 @@ class RunCreate(InputModel):
         "run yields to a higher-priority one that waits, at its next checkpoint.",
     )  # fmt: skip
     config: dict[str, Any] = Field(
-        default_factory=dict, description="TrainConfig fields to override; an unknown one is refused (422)."
+        default_factory=dict,
+        description="TrainConfig fields to override; an unknown one is refused (422). image_size comes from the goal "
+        "set when there is one (another value is refused).",
+    )
+    confirm_env_mismatch: bool = Field(
+        default=False,
+        description="Start it although the goal set was made for another task (otherwise that is refused, 409).",
     )
 
 
@@ -410,6 +425,10 @@ class SweepCreate(InputModel):
     goal_set_id: int | None = Field(default=None, ge=1, le=INT32_MAX)
     priority: int = Field(default=0, ge=-100, le=100)
     config: dict[str, Any] = Field(default_factory=dict)
+    confirm_env_mismatch: bool = Field(
+        default=False,
+        description="Start it although the goal set was made for another task (otherwise that is refused, 409).",
+    )
 
 
 class CompareGroupOut(BaseModel):

@@ -56,6 +56,7 @@ document.addEventListener("DOMContentLoaded", () => {
         const goalSet = await api("POST", "/api/goal-sets", {
           name: createForm.elements.name.value,
           image_size: Number(createForm.elements.image_size.value || 48),
+          env_id: createForm.elements.env_id.value.trim() || null,
         });
         window.location.href = `/goal-sets/${goalSet.id}`;
       } catch (error) {

@@ -99,11 +99,26 @@ function parseSeeds(text) {
 let previewTimer = null;
 let previewFor = null;
 
+/** The chosen goal set's <option> (its data-env-id and data-image-size), or null. */
+function chosenGoalSet(form) {
+  const select = form.elements.goal_set_id;
+  const option = select.options[select.selectedIndex];
+  return option && option.value ? option : null;
+}
+
+/** The model's image size: the goal set's (a run takes it from its set), else the config's default. */
+function imageSize(form) {
+  const option = chosenGoalSet(form);
+  return (option && option.dataset.imageSize) || form.dataset.defaultImageSize || "48";
+}
+
 /** The first frame of the env typed in the Task field (observation as the model sees it, display render). */
 async function showPreview(form) {
   const envId = form.elements.env_id.value.trim();
-  if (!envId || envId === previewFor) return;
-  previewFor = envId;
+  const size = imageSize(form);
+  const key = `${envId}@${size}`;
+  if (!envId || key === previewFor) return;
+  previewFor = key;
   const box = document.getElementById("env-preview");
   const text = document.getElementById("env-preview-text");
   const field = form.querySelector('.field[data-field="env_id"]');
@@ -112,14 +127,14 @@ async function showPreview(form) {
   text.textContent = "Making the env…";
   box.classList.remove("hidden");
   try {
-    const preview = await api("GET", "/api/envs/preview?" + new URLSearchParams({ env_id: envId, size: "48" }));
-    if (previewFor !== envId) return;
+    const preview = await api("GET", "/api/envs/preview?" + new URLSearchParams({ env_id: envId, size }));
+    if (previewFor !== key) return;
     document.getElementById("env-preview-observation").src = preview.observation_url;
     document.getElementById("env-preview-display").src = preview.display_url;
     box.querySelectorAll("figure").forEach((figure) => figure.classList.remove("hidden"));
     text.textContent = preview.description;
   } catch (error) {
-    if (previewFor !== envId) return;
+    if (previewFor !== key) return;
     box.querySelectorAll("figure").forEach((figure) => figure.classList.add("hidden"));
     text.textContent = "";
     field.classList.add("invalid");
@@ -141,8 +156,20 @@ document.addEventListener("DOMContentLoaded", () => {
     clearTimeout(previewTimer);
     previewTimer = setTimeout(() => showPreview(form), 500);
   };
-  envInput.addEventListener("input", () => fillTaskSettings(form, taskSettings));
+  let envTyped = false; // the task typed by hand: picking a goal set no longer changes it
+  envInput.addEventListener("input", () => {
+    envTyped = true;
+    fillTaskSettings(form, taskSettings);
+  });
   fillTaskSettings(form, taskSettings);
+  form.elements.goal_set_id.addEventListener("change", () => {
+    const option = chosenGoalSet(form);
+    if (option && option.dataset.envId && !envTyped && option.dataset.envId !== envInput.value.trim()) {
+      envInput.value = option.dataset.envId; // a goal set shows one task: pick it too
+      fillTaskSettings(form, taskSettings);
+    }
+    showPreview(form);
+  });
   envInput.addEventListener("input", schedulePreview);
   envInput.addEventListener("change", () => showPreview(form));
   showPreview(form);
@@ -190,18 +217,33 @@ document.addEventListener("DOMContentLoaded", () => {
       return;
     }
     button.disabled = true;
-    try {
+    const start = async (confirmed) => {
       if (sweepMethods.length || sweepSeeds.length) {
         const runs = await api("POST", "/api/runs/sweep", {
           name: body.name, env_id: body.env_id, algorithms: sweepMethods.length ? sweepMethods : [body.algorithm],
           seeds: sweepSeeds.length ? sweepSeeds : [body.seed], goal_set_id: body.goal_set_id,
-          priority: body.priority, config: body.config,
+          priority: body.priority, config: body.config, confirm_env_mismatch: confirmed,
         });
         window.location.href = "/compare?runs=" + runs.map((run) => run.id).join(",");
         return;
       }
-      const run = await api("POST", "/api/runs", body);
+      const run = await api("POST", "/api/runs", { ...body, confirm_env_mismatch: confirmed });
       window.location.href = `/runs/${run.id}`;
+    };
+    try {
+      try {
+        await start(false);
+      } catch (error) {
+        // the goal set was made for another task: say so, and start it only when the user confirms
+        if (error.status !== 409 || !String(error.message).includes("confirm_env_mismatch")) throw error;
+        const said = error.message.replace(/ \(confirm_env_mismatch: true\)/, "");
+        if (!window.confirm(said + "\n\nStart it anyway?")) {
+          showErrors(form, [{ loc: ["body", "goal_set_id"], msg: said }]);
+          button.disabled = false;
+          return;
+        }
+        await start(true);
+      }
     } catch (error) {
       showErrors(form, error.detail, error.message);
       button.disabled = false;

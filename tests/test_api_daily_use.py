@@ -68,3 +68,60 @@ def test_run_ids_are_not_reused_in_a_database_made_before_migration_0007(tmp_pat
     store.delete_run(run_id=reused)
     assert _run(store, "after") == reused + 1
     store.dispose()
+
+
+def _goal_set(client: TestClient, name: str, **values: object) -> dict:
+    goal_set = client.post("/api/goal-sets", json={"name": name, **values})
+    assert goal_set.status_code == 201, goal_set.text
+    photo = ("files", ("goal.png", image_bytes((48, 48)), "image/png"))
+    assert client.post(f"/api/goal-sets/{goal_set.json()['id']}/examples", files=[photo]).status_code == 201
+    return goal_set.json()
+
+
+def test_a_goal_set_knows_its_task_and_a_run_of_another_is_refused_unless_confirmed(client: TestClient) -> None:
+    door = _goal_set(client, "door open", env_id="VisualDoor-v0")
+    assert door["env_id"] == "VisualDoor-v0"
+    assert client.get(f"/api/goal-sets/{door['id']}").json()["env_id"] == "VisualDoor-v0"
+    # "Start a run with this set" opens the New run form on the set's task
+    form = client.get(f"/runs/new?goal_set={door['id']}").text
+    assert re.search(r'id="env_id"[^>]*value="VisualDoor-v0"', form)
+    body = {"env_id": "VisualPusher-v0", "goal_set_id": door["id"]}
+    refused = client.post("/api/runs", json=body)
+    assert refused.status_code == 409
+    assert "made for VisualDoor-v0, not VisualPusher-v0" in refused.json()["detail"]
+    assert client.post("/api/runs/sweep", json={**body, "algorithms": ["vice"], "seeds": [0]}).status_code == 409
+    assert client.get("/api/runs").json() == []
+    confirmed = client.post("/api/runs", json={**body, "confirm_env_mismatch": True})
+    assert confirmed.status_code == 201, confirmed.text
+    same_task = client.post("/api/runs", json={**body, "env_id": "VisualDoor-v0"})
+    assert same_task.status_code == 201, same_task.text
+    # a set made for no task in particular fits any
+    anything = _goal_set(client, "anything")
+    assert anything["env_id"] is None
+    assert client.post("/api/runs", json={**body, "goal_set_id": anything["id"]}).status_code == 201
+
+
+def test_the_simulated_goal_set_of_a_task_knows_it(store: Store) -> None:
+    from app.demo import add_simulated_goal_set
+
+    goal_set_id = add_simulated_goal_set(store, task="door", name="door goals", count=1)
+    assert store.get_goal_set(goal_set_id=goal_set_id).env_id == "VisualDoor-v0"
+
+
+def test_a_run_takes_its_image_size_from_its_goal_set(client: TestClient) -> None:
+    big = _goal_set(client, "big photos", image_size=64, env_id="VisualPusher-v0")
+    run = client.post("/api/runs", json={"env_id": "VisualPusher-v0", "goal_set_id": big["id"]})
+    assert run.status_code == 201, run.text
+    assert run.json()["config"]["image_size"] == 64
+    other = client.post(
+        "/api/runs", json={"env_id": "VisualPusher-v0", "goal_set_id": big["id"], "config": {"image_size": 32}}
+    )
+    assert other.status_code == 422
+    assert "prepares its photos at 64×64 px" in other.json()["detail"][0]["msg"]
+    same = client.post(
+        "/api/runs", json={"env_id": "VisualPusher-v0", "goal_set_id": big["id"], "config": {"image_size": 64}}
+    )
+    assert same.status_code == 201
+    # without a goal set the config's own default
+    sparse = client.post("/api/runs", json={"env_id": "VisualPusher-v0", "algorithm": "sparse"})
+    assert sparse.json()["config"]["image_size"] == 48

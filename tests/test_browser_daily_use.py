@@ -200,11 +200,14 @@ def test_own_env_preview_crop_note_framing_and_classifier_return(
     expect(page.locator("#query_every")).to_have_value("1000")
     page.click("details:not(#sweep) summary")
     page.fill("#extra_config", '{"env_id": "VisualPicker-v0"}')  # typed here, it wins (it was silently replaced)
+    asked: list[str] = []  # the goal set was made for the pusher (the form's first task): confirmed here
+    page.once("dialog", lambda dialog: (asked.append(dialog.message), dialog.accept()))
     page.click("#start-run")
     page.wait_for_url(re.compile(r"/runs/\d+$"))
     run_id = int(page.url.rsplit("/", 1)[1])
     run = store.get_run(run_id=run_id)
     assert (run.env_id, run.config["query_every"], run.config["query_budget"]) == ("VisualPicker-v0", 1000, 40)
+    assert asked and "made for VisualPusher-v0, not VisualPicker-v0" in asked[0], asked
 
     # an env without a reward: the classifier's return is drawn instead of a flat zero line; ticks never repeat
     store.claim_next_run(worker="learner-a")
@@ -226,7 +229,8 @@ def test_own_env_preview_crop_note_framing_and_classifier_return(
         assert len(labels) == len(set(labels)), labels
     _shot(page, "14-08-run-classifier-return")
     expected = [p for p in problems if p.startswith("422 ") and "env_id=VisualPusher-v1" in p]  # the misspelt id
-    assert len(expected) == 1 and [p for p in problems if p not in expected] == [], problems
+    expected += [p for p in problems if p.startswith("409 ") and p.endswith("/api/runs")]  # before the confirm
+    assert len(expected) == 2 and [p for p in problems if p not in expected] == [], problems
 
 
 def test_exports_download_from_the_run_page(desktop: Page, live_server: str, store: Store) -> None:

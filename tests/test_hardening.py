@@ -139,9 +139,11 @@ def test_non_finite_and_unbounded_configs_are_422_naming_the_field(
 
 def test_replay_memory_is_checked_against_this_hosts_ram(client: TestClient, goal_set_with_photo: dict) -> None:
     base = {"env_id": "VisualPusher-v0", "goal_set_id": goal_set_with_photo["id"]}
-    # 5M transitions of 256x256 frames: about 1.8 TiB, more than any host this runs on
+    # 5M transitions of 256x256 frames (a run takes its image size from its goal set): about 1.8 TiB, more than
+    # any host this runs on
+    big = client.post("/api/goal-sets", json={"name": "256 px", "image_size": 256}).json()
     errors = _field_errors(
-        client.post("/api/runs", json={**base, "config": {"replay_capacity": 5_000_000, "image_size": 256}})
+        client.post("/api/runs", json={**base, "goal_set_id": big["id"], "config": {"replay_capacity": 5_000_000}})
     )
     assert "GiB" in errors["replay_capacity"] and "of its RAM" in errors["replay_capacity"]
     # the defaults fit (about 2.8 GiB)

@@ -36,7 +36,10 @@ def _clean_filename(name: str | None, index: int) -> str:
     responses=errors(400, 409, *WRITE_ERRORS),
 )
 def create_goal_set(body: GoalSetCreate, store: StoreDep, _auth: WriteAuth) -> GoalSetOut:
-    return GoalSetOut.of(store.create_goal_set(name=body.name, image_size=body.image_size), 0)
+    """env_id: the task the photos show ("Start a run with this set" opens it; a run of another task is refused
+    unless confirmed)."""
+    goal_set = store.create_goal_set(name=body.name, image_size=body.image_size, env_id=body.env_id)
+    return GoalSetOut.of(goal_set, 0)
 
 
 @router.get("/api/goal-sets", response_model=list[GoalSetOut])

@@ -93,18 +93,23 @@ def runs_page(request: Request, settings: SettingsDep, store: StoreDep, archived
 def new_run_page(request: Request, settings: SettingsDep, store: StoreDep, goal_set: OptionalId = None):
     defaults = TrainConfig()
     goal_sets = [GoalSetOut.of(goal_set_row, count) for goal_set_row, count in store.list_goal_sets()]
+    # the set asked for ("Start a run with this set"), else the newest; its task is the form's task
+    chosen = next((g for g in goal_sets if g.id == goal_set), goal_sets[-1] if goal_sets else None)
+    tasks = available_tasks()
+    env_id = (chosen.env_id if chosen else None) or (tasks[0].env_id if tasks else "VisualPusher-v0")
     return _page(
         request,
         "new_run.html",
         settings,
         store,
         title="New run",
-        tasks=available_tasks(),
+        tasks=tasks,
+        initial_env_id=env_id,
         env_ids=[env_id for env_id in known_env_ids() if env_id not in SIM_ENV_IDS],
         env_modules=list(settings.env_modules),
         algorithms=[(name, spec.label) for name, spec in ALGORITHM_SPECS.items()],
         goal_sets=goal_sets,
-        selected_goal_set=goal_set,
+        selected_goal_set=chosen.id if chosen else None,
         defaults=defaults,
         config_reference=config_reference(),
         task_settings={env_id: task.model_dump() for env_id, task in task_settings_out().items()},
@@ -140,7 +145,9 @@ def goal_sets_page(request: Request, settings: SettingsDep, store: StoreDep):
     for goal_set, count in store.list_goal_sets():
         examples = store.list_goal_examples(goal_set_id=goal_set.id)[:6]
         goal_sets.append((GoalSetOut.of(goal_set, count), [GoalExampleOut.of(example) for example in examples]))
-    return _page(request, "goal_sets.html", settings, store, title="Goal sets", goal_sets=goal_sets)
+    return _page(
+        request, "goal_sets.html", settings, store, title="Goal sets", goal_sets=goal_sets, tasks=available_tasks()
+    )
 
 
 @router.get("/goal-sets/{goal_set_id}", response_class=HTMLResponse)

@@ -95,6 +95,38 @@ def _goal_set_error(message: str) -> HTTPException:
     return HTTPException(status_code=422, detail=[_field_error(["body", "goal_set_id"], "goal_set_id", message)])
 
 
+def image_size_from_goal_set(store: Store, body: RunCreate) -> RunCreate:
+    """The goal set is where the model's image size is set (its photos are prepared at that size): a run with a
+    set takes its image_size from it; another image_size in the config is refused (422)."""
+    if body.goal_set_id is None:
+        return body
+    try:
+        goal_set = store.get_goal_set(goal_set_id=body.goal_set_id)
+    except NotFound:
+        return body  # check_goal_set says so
+    given = body.config.get("image_size")
+    if given is not None and given != goal_set.image_size:
+        raise HTTPException(status_code=422, detail=[_field_error(
+            ["body", "config", "image_size"], "image_size",
+            f"the goal set {goal_set.name!r} prepares its photos at {goal_set.image_size}×{goal_set.image_size} px, "
+            f"so its runs see {goal_set.image_size} px images; leave image_size out, or use a goal set of {given} px",
+        )])  # fmt: skip
+    return body.model_copy(update={"config": {**body.config, "image_size": goal_set.image_size}})
+
+
+def check_goal_set_env(store: Store, *, env_id: str, goal_set_id: int | None, confirmed: bool) -> None:
+    """A goal set shows one task: a run of another with it is refused (409) unless confirm_env_mismatch."""
+    if goal_set_id is None or confirmed:
+        return
+    goal_set = store.get_goal_set(goal_set_id=goal_set_id)
+    if goal_set.env_id and goal_set.env_id != env_id:
+        raise HTTPException(
+            status_code=409,
+            detail=f"the goal set {goal_set.name!r} was made for {goal_set.env_id}, not {env_id}: its photos show "
+            f"another task. Pick a goal set of {env_id}, or start it anyway (confirm_env_mismatch: true).",
+        )
+
+
 def check_goal_set(store: Store, *, algorithm: str, goal_set_id: int | None) -> None:
     """Every algorithm but sparse learns its reward from goal examples: it needs a set with at least one."""
     spec = ALGORITHM_SPECS.get(algorithm)
@@ -116,10 +148,13 @@ def check_goal_set(store: Store, *, algorithm: str, goal_set_id: int | None) -> 
         )
 
 
-@router.post("", status_code=status.HTTP_201_CREATED, response_model=RunDetail, responses=errors(*WRITE_ERRORS))
+@router.post("", status_code=status.HTTP_201_CREATED, response_model=RunDetail, responses=errors(409, *WRITE_ERRORS))
 def create_run(body: RunCreate, store: StoreDep, settings: SettingsDep, _auth: WriteAuth) -> RunDetail:
-    config = validate_run_config(body, settings)
+    """A run with a goal set takes its image_size from the set; a goal set made for another task is refused (409)
+    unless `confirm_env_mismatch` is true."""
+    config = validate_run_config(image_size_from_goal_set(store, body), settings)
     check_goal_set(store, algorithm=config.algorithm, goal_set_id=body.goal_set_id)
+    check_goal_set_env(store, env_id=config.env_id, goal_set_id=body.goal_set_id, confirmed=body.confirm_env_mismatch)
     run = _create(store, config, goal_set_id=body.goal_set_id, priority=body.priority, name=body.name.strip())
     return run_detail(store, run)
 
@@ -133,7 +168,7 @@ def _create(store: Store, config: TrainConfig, *, goal_set_id: int | None, prior
 
 
 @router.post(
-    "/sweep", status_code=status.HTTP_201_CREATED, response_model=list[RunOut], responses=errors(*WRITE_ERRORS)
+    "/sweep", status_code=status.HTTP_201_CREATED, response_model=list[RunOut], responses=errors(409, *WRITE_ERRORS)
 )
 def create_sweep(body: SweepCreate, store: StoreDep, settings: SettingsDep, _auth: WriteAuth) -> list[RunOut]:
     """Start methods × seeds in one action: every combination is checked first (422 names the first bad one and
@@ -146,8 +181,11 @@ def create_sweep(body: SweepCreate, store: StoreDep, settings: SettingsDep, _aut
                 env_id=body.env_id, algorithm=algorithm, seed=seed, goal_set_id=body.goal_set_id,
                 priority=body.priority, config=body.config,
             )  # fmt: skip
-            config = validate_run_config(single, settings)
+            config = validate_run_config(image_size_from_goal_set(store, single), settings)
             check_goal_set(store, algorithm=config.algorithm, goal_set_id=body.goal_set_id)
+            check_goal_set_env(
+                store, env_id=config.env_id, goal_set_id=body.goal_set_id, confirmed=body.confirm_env_mismatch
+            )
             checked.append(config)
     prefix = body.name.strip() or f"sweep {body.env_id}"
     runs = []

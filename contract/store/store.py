@@ -123,15 +123,17 @@ class Store(Database):
     """The one API over the database for the learner, the server and the tools."""
 
     # ---------------------------------------------------------------- goal sets and examples
-    def create_goal_set(self, *, name: str, image_size: int = 48) -> GoalSet:
+    def create_goal_set(self, *, name: str, image_size: int = 48, env_id: str | None = None) -> GoalSet:
+        """env_id: the task the photos show (None: any task)."""
         name = name.strip()
         if not name:
             raise InvalidInput("a goal set needs a name")
         if not 8 <= image_size <= 512:
             raise InvalidInput("image_size must be between 8 and 512")
+        env_id = (env_id or "").strip() or None
         try:
             with self.writing() as session:
-                goal_set = GoalSet(name=name, image_size=image_size)
+                goal_set = GoalSet(name=name, image_size=image_size, env_id=env_id)
                 session.add(goal_set)
                 session.flush()
                 return goal_set
