@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+DEV_STAMP := $(VENV)/.installed-dev
 # Debian packages. To run: Mesa for headless MuJoCo rendering (EGL and OSMesa). Only for the tests:
 # Chromium for browser tests, docker-compose to check docker-compose.yml (the check needs no Docker engine),
 # PostgreSQL for the tests of the store on PostgreSQL.
@@ -11,27 +12,35 @@ TEST_PACKAGES := chromium docker-compose postgresql
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 
-.PHONY: run test lint install run-packages test-packages bench clean
+.PHONY: run test lint install install-dev run-packages test-packages bench clean
 
 run: install
 	$(BIN)/raq migrate
 	$(BIN)/raq up --demo
 
-test: test-packages install
+test: test-packages install-dev
 	$(BIN)/ruff check app cli contract learner robot sim tests bench examples
 	@rm -f $(VENV)/pytest-exit-code
 	$(BIN)/python -m pytest $(PYTEST_ARGS); code=$$?; echo $$code > $(VENV)/pytest-exit-code; exit $$code
 
-lint: install
+lint: install-dev
 	$(BIN)/ruff check app cli contract learner robot sim tests bench examples
 
+# `make run` installs what runs (the project); `make test` adds the test tools (.[dev]). Each has its own stamp,
+# so that `make run` never installs the test tools and `make test` installs them once.
 install: run-packages $(STAMP)
+
+install-dev: $(DEV_STAMP)
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[dev]'
+	$(BIN)/pip install --quiet -e .
 	touch $(STAMP)
+
+$(DEV_STAMP): $(STAMP) pyproject.toml
+	$(BIN)/pip install --quiet -e '.[dev]'
+	touch $(DEV_STAMP)
 
 # $(call require-packages,LIST): install the missing ones with apt-get as root; otherwise print the exact
 # apt-get command and fail.
