@@ -23,7 +23,7 @@ import json
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -63,10 +63,8 @@ CHECKPOINT_VERSION = 1
 
 
 def config_for_run(run: Run) -> TrainConfig:
-    """The run's stored config; its own columns (env, algorithm, seed, total steps) win over the JSON."""
-    config = TrainConfig.from_dict(dict(run.config or {}))
-    total = int(run.total_steps) if run.total_steps else config.total_steps
-    return replace(config, env_id=run.env_id, algorithm=run.algorithm, seed=run.seed, total_steps=total)
+    """The run's stored config (its columns and its JSON, Run.config_values)."""
+    return TrainConfig.from_dict(run.config_values())
 
 
 def train_run(

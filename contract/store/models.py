@@ -114,6 +114,10 @@ class GoalExample(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
+COLUMN_CONFIG_FIELDS = ("env_id", "algorithm", "seed", "total_steps")
+"""Config fields a run keeps in its own columns and not in its config JSON: each is stored once."""
+
+
 class Run(Base):
     __tablename__ = "runs"
     # a deleted run's id is never given again (migration 0007; PostgreSQL's sequences never go back anyway)
@@ -124,6 +128,7 @@ class Run(Base):
     env_id: Mapped[str] = mapped_column(String(200))
     algorithm: Mapped[str] = mapped_column(String(50))
     config: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    """The run's config fields other than COLUMN_CONFIG_FIELDS (config_values() has them all)."""
     seed: Mapped[int] = mapped_column(Integer, default=0)
     goal_set_id: Mapped[int | None] = mapped_column(ForeignKey("goal_sets.id", ondelete="SET NULL"))
     status: Mapped[str] = mapped_column(String(20), default=RunStatus.QUEUED, index=True)
@@ -145,6 +150,15 @@ class Run(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     started_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
     finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+
+    def config_values(self) -> dict[str, Any]:
+        """The run's whole configuration, as TrainConfig.from_dict takes it: the config JSON with the env id,
+        algorithm, seed and total steps of the run's columns (which win over any older copy in the JSON)."""
+        values = {key: value for key, value in (self.config or {}).items() if key not in COLUMN_CONFIG_FIELDS}
+        values.update(env_id=self.env_id, algorithm=self.algorithm, seed=self.seed)
+        if self.total_steps:
+            values["total_steps"] = self.total_steps
+        return values
 
 
 class Query(Base):
