@@ -178,6 +178,12 @@ class RunCreate(InputModel):
     )
 
 
+class RunContinue(InputModel):
+    """Train a finished run further: to this new total of env steps, from its last checkpoint."""
+
+    total_steps: int = Field(gt=0, le=1_000_000_000, description="The new total; more than the run's total now.")
+
+
 class RunUpdate(InputModel):
     """Change a run's priority, or archive it (a stopped, failed or finished run) / take it out of the archive."""
 

@@ -88,6 +88,13 @@ function renderRun(run) {
   const canResume = run.status === "stopped" || run.status === "failed";
   document.getElementById("stop-run").classList.toggle("hidden", !canStop);
   document.getElementById("resume-run").classList.toggle("hidden", !canResume);
+  const finished = run.status === "finished";
+  const continueForm = document.getElementById("continue-form");
+  if (finished && continueForm.classList.contains("hidden")) {
+    document.getElementById("continue-steps").value = String(run.total_steps * 2); // a suggestion: twice as long
+    document.getElementById("continue-steps").min = String(run.total_steps + 1);
+  }
+  continueForm.classList.toggle("hidden", !finished);
   const archive = document.getElementById("archive-run");
   archive.textContent = run.archived ? "Unarchive" : "Archive";
   archive.classList.toggle("hidden", !run.archived && (run.status === "queued" || active));
@@ -182,6 +189,18 @@ async function runAction(action) {
   }
 }
 
+async function continueRun(event) {
+  event.preventDefault();
+  const total = Number(document.getElementById("continue-steps").value);
+  try {
+    renderRun(await api("POST", `/api/runs/${page.run.id}/continue`, { total_steps: total }));
+    toast(`Queued to train on to ${total.toLocaleString()} steps from its last checkpoint.`);
+    refreshEvents();
+  } catch (error) {
+    toast(error.message, "error", 6000);
+  }
+}
+
 async function changeRun(change) {
   try {
     renderRun(await api("PATCH", `/api/runs/${page.run.id}`, change));
@@ -217,6 +236,7 @@ document.addEventListener("DOMContentLoaded", () => {
   renderRun(page.run);
   document.getElementById("stop-run").addEventListener("click", () => runAction("stop"));
   document.getElementById("resume-run").addEventListener("click", () => runAction("resume"));
+  document.getElementById("continue-form").addEventListener("submit", continueRun);
   document.getElementById("archive-run").addEventListener("click", () => changeRun({ archived: !page.run.archived }));
   document.getElementById("run-priority").addEventListener("change", (event) =>
     changeRun({ priority: Number(event.target.value) }));

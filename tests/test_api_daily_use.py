@@ -125,3 +125,27 @@ def test_a_run_takes_its_image_size_from_its_goal_set(client: TestClient) -> Non
     # without a goal set the config's own default
     sparse = client.post("/api/runs", json={"env_id": "VisualPusher-v0", "algorithm": "sparse"})
     assert sparse.json()["config"]["image_size"] == 48
+
+
+def test_a_finished_run_is_continued_to_a_new_total_from_its_last_checkpoint(client: TestClient, store: Store) -> None:
+    run_id = _run(store, "done")
+    store.claim_next_run(worker="learner-a")
+    store.heartbeat(run_id=run_id, worker="learner-a", step=25_000, status=RunStatus.TRAINING)
+    store.set_run_status(run_id=run_id, status=RunStatus.FINISHED, worker="learner-a")
+    resumed = client.post(f"/api/runs/{run_id}/resume")
+    assert resumed.status_code == 409 and "continue it" in resumed.json()["detail"]
+    assert client.post(f"/api/runs/{run_id}/continue", json={"total_steps": 25_000}).status_code == 400
+    assert client.post(f"/api/runs/{run_id}/continue", json={"total_steps": 0}).status_code == 422
+    continued = client.post(f"/api/runs/{run_id}/continue", json={"total_steps": 50_000})
+    assert continued.status_code == 200, continued.text
+    run = continued.json()
+    assert (run["status"], run["step"], run["total_steps"]) == ("queued", 25_000, 50_000)
+    assert any("continued from step 25,000 to 50,000 steps" in e.message for e in store.events(run_id=run_id))
+    # a learner takes it again, at the new total (it loads the run's last checkpoint)
+    claimed = store.claim_next_run(worker="learner-b")
+    assert claimed is not None and claimed.id == run_id and claimed.total_steps == 50_000
+    from learner.train import config_for_run
+
+    assert config_for_run(store.get_run(run_id=run_id)).total_steps == 50_000
+    # not while a learner holds it
+    assert client.post(f"/api/runs/{run_id}/continue", json={"total_steps": 90_000}).status_code == 409

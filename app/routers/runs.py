@@ -9,7 +9,17 @@ import pydantic
 from fastapi import APIRouter, HTTPException, Query, Response, status
 
 from app.deps import ReadAuth, RunId, SettingsDep, StoreDep, WriteAuth
-from app.schemas import WRITE_ERRORS, RolloutOut, RunCreate, RunDetail, RunOut, RunUpdate, SweepCreate, errors
+from app.schemas import (
+    WRITE_ERRORS,
+    RolloutOut,
+    RunContinue,
+    RunCreate,
+    RunDetail,
+    RunOut,
+    RunUpdate,
+    SweepCreate,
+    errors,
+)
 from contract.algorithms import ALGORITHM_SPECS
 from contract.checkpoint_location import is_remote, run_folder
 from contract.config import TrainConfig, host_cuda_devices, host_memory_bytes
@@ -253,6 +263,14 @@ def stop_run(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RunDetail:
 def resume_run(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RunDetail:
     """Queue a stopped or failed run again; the learner resumes from its last checkpoint (409 otherwise)."""
     return run_detail(store, store.resume_run(run_id=run_id))
+
+
+@router.post("/{run_id}/continue", response_model=RunDetail, responses=errors(400, 404, 409, *WRITE_ERRORS))
+def continue_run(run_id: RunId, body: RunContinue, store: StoreDep, _auth: WriteAuth) -> RunDetail:
+    """Train a finished (or stopped, or failed) run further, to a new total of env steps larger than its total
+    now: queued again, a learner goes on from its last checkpoint (409 while it is queued or active, 400 for a
+    total that is not larger)."""
+    return run_detail(store, store.continue_run(run_id=run_id, total_steps=body.total_steps))
 
 
 @router.get(
