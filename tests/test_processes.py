@@ -9,6 +9,7 @@ import time
 import urllib.error
 import urllib.request
 from pathlib import Path
+from typing import IO
 
 from conftest import free_port
 from sqlalchemy import func, select
@@ -28,16 +29,22 @@ def wait_for_health(port: int, process: subprocess.Popen, timeout: float = 90) -
     raise AssertionError("no answer on /health")
 
 
-def test_raq_up_serves_health_runs_a_learner_and_stops_cleanly(tmp_path: Path) -> None:
+def start_raq_up(tmp_path: Path, *arguments: str) -> tuple[subprocess.Popen, int, IO[str]]:
+    """`raq up` on a SQLite file in tmp_path, in a session of its own (as a terminal runs it); and its port and log."""
     port = free_port()
     env = {**os.environ, "RAQ_DATA_DIR": str(tmp_path), "RAQ_PORT": str(port), "PYTHONUNBUFFERED": "1"}
     env.pop("RAQ_DATABASE_URL", None)
     env.pop("DATABASE_URL", None)
     log = (tmp_path / "up.log").open("w")
     process = subprocess.Popen(
-        [sys.executable, "-m", "cli", "up"], env=env, stdout=log, stderr=subprocess.STDOUT,
+        [sys.executable, "-m", "cli", "up", *arguments], env=env, stdout=log, stderr=subprocess.STDOUT,
         start_new_session=True,
     )  # fmt: skip
+    return process, port, log
+
+
+def test_raq_up_serves_health_runs_a_learner_and_stops_cleanly(tmp_path: Path) -> None:
+    process, port, log = start_raq_up(tmp_path)
     try:
         assert wait_for_health(port, process) == {"status": "ok", "database": "ok"}
         # The learner shares the same SQLite file: a run queued there is claimed by it.
@@ -115,15 +122,7 @@ def learner_processes(supervisor: int) -> list[int]:
 
 
 def test_raq_up_starts_a_learner_that_exits_again_and_keeps_the_server(tmp_path: Path) -> None:
-    port = free_port()
-    env = {**os.environ, "RAQ_DATA_DIR": str(tmp_path), "RAQ_PORT": str(port), "PYTHONUNBUFFERED": "1"}
-    env.pop("RAQ_DATABASE_URL", None)
-    env.pop("DATABASE_URL", None)
-    log = (tmp_path / "up.log").open("w")
-    process = subprocess.Popen(
-        [sys.executable, "-m", "cli", "up", "--learners", "1"], env=env, stdout=log, stderr=subprocess.STDOUT,
-        start_new_session=True,
-    )  # fmt: skip
+    process, port, log = start_raq_up(tmp_path, "--learners", "1")
     try:
         wait_for_health(port, process)
         deadline = time.monotonic() + 30
