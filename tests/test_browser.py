@@ -210,6 +210,9 @@ def test_goal_photos_run_queue_and_curves(page: Page, live_server: str, store: S
     expect(page.locator("#rollout-caption")).to_contain_text("8 frames")
     expect(page.locator("#answered figure")).to_have_count(2)
     expect(page.locator("#events")).to_contain_text("claimed by test-learner")
+    expect(page.locator("#reward-verdict")).to_be_visible(timeout=15_000)  # the verdict on the reward's health
+    expect(page.locator("#verdict-level")).to_have_text("learning")
+    expect(page.locator("#verdict-summary")).to_contain_text("eval success reached 75%")
 
     # more metrics appear without a reload (the page polls with since_step)
     store.record_metrics(run_id=run_id, step=7000, values={"eval/success_rate": 0.9})
