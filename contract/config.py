@@ -340,6 +340,17 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
         )  # fmt: skip
         return replace(faithful, **overrides)
 
+    @classmethod
+    def real_robot(cls, **overrides: Any) -> "TrainConfig":
+        """The paper's real-robot settings (Sec. VII): 84x84 camera images, 32 filters per conv layer, a question
+        every 250 env steps; no evaluation episodes, which would take robot time (give it REAL_ROBOT_GOAL_IMAGES
+        goal photos)."""
+        robot = cls(image_size=84, conv_filters=32, query_every=250, query_budget=50, eval_episodes=0)
+        return replace(robot, **overrides)
+
+
+REAL_ROBOT_GOAL_IMAGES = 80
+"""Goal photos the paper gave each real-robot task."""
 
 CONFIG_PARTS: dict[str, type] = {
     "task": TaskConfig, "sac": SACConfig, "networks": NetworkConfig, "classifier": ClassifierConfig,

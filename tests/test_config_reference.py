@@ -8,7 +8,7 @@ from dataclasses import fields
 from conftest import ROOT
 from fastapi.testclient import TestClient
 
-from contract.config import CONFIG_PARTS, TrainConfig, config_part, field_docs
+from contract.config import CONFIG_PARTS, REAL_ROBOT_GOAL_IMAGES, TrainConfig, config_part, field_docs
 
 
 def test_every_field_has_a_part_and_a_description() -> None:
@@ -36,3 +36,9 @@ def test_the_api_and_the_form_list_every_field(client: TestClient) -> None:
     assert batch["default"] == TrainConfig().batch_size and batch["description"] == "SAC minibatch size."
     page = client.get("/runs/new").text
     assert 'id="config-reference"' in page and "<code>classifier_beside_updates</code>" in page
+
+
+def test_the_real_robot_preset_is_the_papers_robot_settings() -> None:
+    robot = TrainConfig.real_robot(seed=4)
+    assert (robot.image_size, robot.conv_filters, robot.query_every, robot.eval_episodes) == (84, 32, 250, 0)
+    assert robot.seed == 4 and robot.algorithm == "vice_raq" and REAL_ROBOT_GOAL_IMAGES == 80
