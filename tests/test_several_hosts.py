@@ -25,7 +25,7 @@ from sqlalchemy import create_engine, text
 from test_learner_run import tiny_config
 from test_postgres import postgres_url  # noqa: F401  (the module's own PostgreSQL server)
 
-import contract.store.store as store_module
+import contract.store.runs as store_module
 from app.migrate import upgrade
 from contract.settings import Settings
 from contract.store import RunStatus, Store

@@ -1,6 +1,8 @@
 """The store the learner and the server share: models and keyword-only functions, no torch, no FastAPI."""
 
+from contract.store.base import seconds_since
 from contract.store.errors import Conflict, InvalidInput, NotFound, StoreError, first_line, is_transient
+from contract.store.goal_sets import GoalImage
 from contract.store.models import (
     INT32_MAX,
     INT64_MAX,
@@ -16,7 +18,8 @@ from contract.store.models import (
     RunPhase,
     RunStatus,
 )
-from contract.store.store import AnsweredQuery, GoalImage, Store, seconds_since
+from contract.store.queries import AnsweredQuery
+from contract.store.store import Store
 
 __all__ = [
     "first_line",

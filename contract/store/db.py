@@ -3,9 +3,10 @@
 import sqlite3
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager, nullcontext
 from pathlib import Path
+from typing import TypeVar
 
 from sqlalchemy import Connection, Engine, create_engine, event, exc
 from sqlalchemy.engine import make_url
@@ -23,6 +24,46 @@ SQLITE_LOCK_POLL_S = (0.0005, 0.005)
 """A writer waiting for another process's write lock retries after 0.5 ms, doubling up to 5 ms."""
 
 
+T = TypeVar("T")
+
+
+def retry(
+    attempt: Callable[[], T],
+    *,
+    again: Callable[[Exception], bool],
+    tries: int | None = None,
+    seconds: float | None = None,
+    pauses: tuple[float, float] = (0.0, 0.0),
+    gave_up: Callable[[], Exception] | None = None,
+) -> T:
+    """attempt() until it returns: the one retry loop of the store (a busy SQLite lock here, a lost compare-and-set
+    in contract.store.base). An exception that `again` accepts calls it once more, after a pause of pauses[0] s
+    doubling up to pauses[1] s, at most `tries` calls or for `seconds` s; then gave_up()'s exception is raised in
+    its place (without gave_up: the last one itself). Any other exception passes at once."""
+    deadline = None if seconds is None else time.monotonic() + seconds
+    pause, tried = pauses[0], 0
+    while True:
+        try:
+            return attempt()
+        except Exception as error:
+            tried += 1
+            if not again(error):
+                raise
+            if tried == tries or (deadline is not None and time.monotonic() > deadline):
+                if gave_up is None:
+                    raise
+                raise gave_up() from None
+        if pause:
+            time.sleep(pause)
+            pause = min(2 * pause, pauses[1])
+
+
+def _sqlite_busy(error: Exception) -> bool:
+    return isinstance(error, sqlite3.OperationalError) and error.sqlite_errorname.startswith(
+        ("SQLITE_BUSY", "SQLITE_LOCKED")  # or an extended code
+    )
+
+
 def _begin_immediate(dbapi_connection: sqlite3.Connection) -> None:
     """BEGIN IMMEDIATE, retried every few ms while another connection writes, up to the busy timeout.
 
@@ -30,20 +71,12 @@ def _begin_immediate(dbapi_connection: sqlite3.Connection) -> None:
     lock holder waits up to 100 ms after the lock is free, which made the answers' p99 latency 200+ ms while
     learners wrote. Polling at most every 5 ms costs microseconds per try.
     """
-    deadline = time.monotonic() + SQLITE_BUSY_TIMEOUT_MS / 1000
-    pause = SQLITE_LOCK_POLL_S[0]
     dbapi_connection.execute("PRAGMA busy_timeout=0")
     try:
-        while True:
-            try:
-                dbapi_connection.execute("BEGIN IMMEDIATE")
-                return
-            except sqlite3.OperationalError as error:
-                busy = error.sqlite_errorname.startswith(("SQLITE_BUSY", "SQLITE_LOCKED"))  # or an extended code
-                if not busy or time.monotonic() > deadline:
-                    raise
-            time.sleep(pause)
-            pause = min(2 * pause, SQLITE_LOCK_POLL_S[1])
+        retry(
+            lambda: dbapi_connection.execute("BEGIN IMMEDIATE"),
+            again=_sqlite_busy, seconds=SQLITE_BUSY_TIMEOUT_MS / 1000, pauses=SQLITE_LOCK_POLL_S,
+        )  # fmt: skip
     finally:
         dbapi_connection.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
 
