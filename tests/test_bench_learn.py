@@ -1,5 +1,5 @@
 """bench/learn.py end to end, as a learning run uses it: a real store, `raq serve`, `raq oracle` and `raq learn` on
-a simulated task with the settings it was measured to learn with, down to its curve and summary."""
+a simulated task with its preset, down to its curve and summary; and bench/seeds.py over two seeds."""
 
 import csv
 import json
@@ -51,3 +51,28 @@ def test_a_run_with_task_settings_writes_its_curve_and_summary(tmp_path: Path) -
     }
     assert rewritten["stopped_because"] == "report" and rewritten["wall_minutes"] is not None
     assert (out / "curve.png").stat().st_size > 1000
+
+
+def test_the_seeds_harness_runs_seeds_side_by_side_then_only_reports_them(tmp_path: Path) -> None:
+    out, table = tmp_path / "seeds", tmp_path / "seeds.csv"
+    command = [
+        sys.executable, "bench/seeds.py", "--task", "pusher", "--seeds", "3-4", "--parallel", "2", "--budget", "150",
+        "--goals", "4", "--out", str(out), "--csv", str(table), "--set", *SMALL,
+    ]  # fmt: skip
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    assert "seed 3: started" in done.stdout and "seed 4: started" in done.stdout
+    assert "| 3 | not reached (150) |" in done.stdout and "0 of 2 seeds within the target" in done.stdout
+    assert (out / "pusher-vice_raq-seeds.png").stat().st_size > 1000
+    with table.open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [(row["task"], row["seed"], row["steps_to_target"], row["env_steps"]) for row in rows] == [
+        ("pusher", "3", "", "150"), ("pusher", "4", "", "150"),
+    ]  # fmt: skip
+    assert rows[0]["queries"] == "3" and rows[0]["device"] == "cpu" and rows[0]["target"] == "0.9"
+
+    # again: both are at their budget, so nothing runs, and their rows are replaced, not added
+    again = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0 and "started" not in again.stdout
+    with table.open() as handle:
+        assert len(list(csv.DictReader(handle))) == 2
