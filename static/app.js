@@ -81,11 +81,15 @@ export async function api(method, url, body) {
   return data;
 }
 
+/** A number for people: negatives with a real minus sign (U+2212), which no line breaks after ("-" did: the
+ * legend read "evaluation -" over "389.246"). */
 export function fmtNumber(value, digits = 2) {
   if (value === null || value === undefined || Number.isNaN(value)) return "–";
   const abs = Math.abs(value);
-  if (abs !== 0 && (abs >= 1e5 || abs < 1e-3)) return value.toExponential(1);
-  return Number(value.toFixed(digits)).toLocaleString();
+  const text = abs !== 0 && (abs >= 1e5 || abs < 1e-3)
+    ? abs.toExponential(1)
+    : Number(abs.toFixed(digits)).toLocaleString(undefined, { maximumFractionDigits: digits });
+  return (value < 0 && text !== "0" ? "\u2212" : "") + text;
 }
 
 export function fmtSteps(value) {

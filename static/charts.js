@@ -27,10 +27,18 @@ function niceTicks(min, max, count) {
 
 function tickLabel(value, extra = 0) {
   const abs = Math.abs(value);
-  if (abs >= 1e6) return Number((value / 1e6).toFixed((abs >= 1e7 ? 0 : 1) + extra)) + "M";
-  if (abs >= 1e3) return Number((value / 1e3).toFixed((abs >= 1e4 ? 0 : 1) + extra)) + "k";
-  if (abs !== 0 && abs < 0.01) return value.toExponential(extra);
-  return String(Number(value.toPrecision(3 + extra)));
+  const sign = value < 0 ? "\u2212" : ""; // a real minus sign
+  if (abs >= 1e6) return sign + Number((abs / 1e6).toFixed((abs >= 1e7 ? 0 : 1) + extra)) + "M";
+  if (abs >= 1e3) return sign + Number((abs / 1e3).toFixed((abs >= 1e4 ? 0 : 1) + extra)) + "k";
+  if (abs !== 0 && abs < 0.01) return sign + abs.toExponential(extra);
+  return sign + String(Number(abs.toPrecision(3 + extra)));
+}
+
+/** The step axis of a chart with one point: half the step either side, 0 to 2 at step 0 (it was 999 to 1.001k
+ * for a point at step 1,000). */
+function stepsAroundOne(step) {
+  const pad = step !== 0 ? Math.abs(step) / 2 : 1;
+  return [Math.max(0, step - pad), step + pad];
 }
 
 /** Labels for the ticks, with as many more digits as it takes for no two to read the same (10.5k was "11k"). */
@@ -99,10 +107,7 @@ export class LineChart {
     }
     let xMin = Math.min(...all.map((p) => p[0]));
     let xMax = Math.max(...all.map((p) => p[0]));
-    if (xMin === xMax) {
-      xMin = Math.max(0, xMin - 1);
-      xMax = xMax + 1;
-    }
+    if (xMin === xMax) [xMin, xMax] = stepsAroundOne(xMin);
     let yMin = Math.min(...all.map((p) => Math.min(p[1], p.length > 3 ? p[2] : p[1])));
     let yMax = Math.max(...all.map((p) => Math.max(p[1], p.length > 3 ? p[3] : p[1])));
     if (this.options.yMin !== undefined) yMin = Math.min(yMin, this.options.yMin);

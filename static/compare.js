@@ -32,6 +32,7 @@ function groupRow(group, index) {
 }
 
 async function load() {
+  if (!state.runs.length) return; // none picked: the page says how to pick them
   const params = new URLSearchParams({ runs: state.runs.join(","), metric: state.metric });
   const data = await api("GET", "/api/compare?" + params);
   const element = document.getElementById("compare-chart");

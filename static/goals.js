@@ -25,24 +25,39 @@ async function uploadFiles(goalSetId, files) {
 }
 
 /** The goal-set page's framing panel: the run camera's first frame of the chosen task, as the model sees it. */
+let framingFor = null; // the env id last asked for: an older answer arriving late is dropped
+
 async function showFraming(input) {
+  const envId = input.value.trim();
+  if (envId === framingFor) return;
+  framingFor = envId;
   const text = document.getElementById("framing-text");
   text.textContent = "Making the env…";
   try {
-    const params = new URLSearchParams({ env_id: input.value.trim(), size: input.dataset.size });
+    const params = new URLSearchParams({ env_id: envId, size: input.dataset.size });
     const preview = await api("GET", "/api/envs/preview?" + params);
+    if (framingFor !== envId) return;
     document.getElementById("framing-observation").src = preview.observation_url;
     document.getElementById("framing-display").src = preview.display_url;
     text.textContent = preview.description;
   } catch (error) {
-    text.textContent = error.message;
+    if (framingFor === envId) text.textContent = error.message;
   }
 }
 
 document.addEventListener("DOMContentLoaded", () => {
   const framing = document.getElementById("framing-env");
   if (framing) {
-    framing.addEventListener("change", () => showFraming(framing));
+    // as the task is typed (after a short pause) or picked from the list, not only when the field loses focus
+    let timer = null;
+    framing.addEventListener("input", () => {
+      clearTimeout(timer);
+      timer = setTimeout(() => showFraming(framing), 400);
+    });
+    framing.addEventListener("change", () => {
+      clearTimeout(timer);
+      showFraming(framing);
+    });
     showFraming(framing);
   }
 

@@ -33,13 +33,22 @@ function renderGoals(item) {
     return;
   }
   document.getElementById("goal-strip").replaceChildren(
-    ...item.goal_examples.flatMap((e) => [
-      el("figure", {}, el("img", { class: "thumb display", src: e.display_url, alt: e.filename }),
-        el("figcaption", {}, e.filename)),
-      el("figure", {},
+    ...item.goal_examples.flatMap((e) => {
+      const model = el("figure", {},
         el("img", { class: "thumb pixelated model", src: e.model_url, alt: `model view of ${e.filename}` }),
-        el("figcaption", {}, "model view")),
-    ])
+        el("figcaption", {}, "model view"));
+      const photo = el("figure", {}, el("img", { class: "thumb display", src: e.display_url, alt: e.filename }),
+        el("figcaption", {}, e.filename));
+      // a photo already of the model's size and square (a 48×48 render) is the model's view: shown once
+      model.querySelector("img").addEventListener("load", (event) => {
+        const image = event.target;
+        if (image.naturalWidth === e.width && image.naturalHeight === e.height) {
+          photo.remove();
+          model.querySelector("figcaption").textContent = `${e.filename} (the model's view)`;
+        }
+      });
+      return [photo, model];
+    })
   );
   panel.classList.remove("hidden");
 }

@@ -54,9 +54,11 @@ function renderRun(run) {
     progress.replaceChildren();
   }
   document.getElementById("stat-success").textContent = fmtPercent(run.success_rate);
-  document.getElementById("stat-heartbeat").textContent = run.heartbeat_at ? fmtAge(run.heartbeat_age_seconds) : "–";
-  document.getElementById("stat-worker").textContent = run.worker ? run.worker : "no learner yet";
   const active = isActive(run);
+  // only a run a learner holds beats: a stopped or finished run's last beat only grows older
+  document.getElementById("stat-heartbeat").textContent =
+    active && run.heartbeat_at ? fmtAge(run.heartbeat_age_seconds) : "–";
+  document.getElementById("stat-worker").textContent = run.worker ? run.worker : "no learner yet";
   document.getElementById("stat-speed").textContent = active ? fmtNumber(run.steps_per_second, 1) : "–";
   const warmUp = active && run.phase === "warm-up";
   document.getElementById("stat-eta").textContent = run.status === "finished" ? "done"

@@ -8,7 +8,7 @@ const selected = new Set();
 function runRow(run) {
   const progress = run.total_steps ? Math.min(1, run.step / run.total_steps) : 0;
   const active = isActive(run);
-  const status = el("td", {}, statusPill(run));
+  const status = el("td", { class: "status-cell", "data-label": "Status" }, statusPill(run));
   if (run.status === "queued" && run.waiting_reason) {
     status.append(el("div", { class: "small muted waiting-reason" }, run.waiting_reason));
   } else if (run.status === "failed" && run.status_reason) {
@@ -21,16 +21,16 @@ function runRow(run) {
   const steps = `${fmtSteps(run.step)} / ${fmtSteps(run.total_steps)}`;
   const progressCell = el(
     "td",
-    { class: "progress-cell" },
+    { class: "progress-cell", "data-label": "Progress" },
     el("div", { class: "small" }, steps, el("span", { class: "muted" }, eta)),
     el("div", { class: "progress" }, bar)
   );
   progressCell.style.minWidth = "170px";
-  const queries = el("td", { class: "num" }, `${run.queries.answered}/${run.queries.asked}`);
+  const queries = el("td", { class: "num", "data-label": "Queries" }, `${run.queries.answered}/${run.queries.asked}`);
   if (run.queries.pending) {
     queries.append(" · ", el("a", { href: `/queue?run=${run.id}` }, el("b", {}, `${run.queries.pending} waiting`)));
   }
-  const name = el("td", {}, el("a", { href: `/runs/${run.id}` }, el("b", {}, `#${run.id}`)), " " + run.name);
+  const name = el("td", { class: "name-cell" }, el("a", { href: `/runs/${run.id}` }, el("b", {}, `#${run.id}`)), " " + run.name);
   if (run.priority) name.append(" ", el("span", { class: "small muted", title: "priority" }, `p${run.priority}`));
   const check = el("input", {
     type: "checkbox", class: "compare-check", value: run.id, "aria-label": `compare run ${run.id}`,
@@ -45,9 +45,11 @@ function runRow(run) {
     el("td", { class: "wide-only" }, el("code", {}, run.algorithm)),
     status,
     progressCell,
-    el("td", { class: "num" }, fmtPercent(run.success_rate)),
+    el("td", { class: "num", "data-label": "Success" }, fmtPercent(run.success_rate)),
     queries,
-    el("td", { class: "num wide-only" }, run.heartbeat_at ? fmtAge(run.heartbeat_age_seconds) : "–")
+    // only a run a learner holds beats: a stopped or finished run's last beat only grows older
+    el("td", { class: "num heartbeat-cell", "data-label": "Heartbeat" },
+      active && run.heartbeat_at ? fmtAge(run.heartbeat_age_seconds) : "–")
   );
 }
 

@@ -149,3 +149,12 @@ def test_a_finished_run_is_continued_to_a_new_total_from_its_last_checkpoint(cli
     assert config_for_run(store.get_run(run_id=run_id)).total_steps == 50_000
     # not while a learner holds it
     assert client.post(f"/api/runs/{run_id}/continue", json={"total_steps": 90_000}).status_code == 409
+
+
+def test_compare_with_no_runs_picked_shows_the_page_with_how_to_pick_them(client: TestClient) -> None:
+    for url in ("/compare", "/compare?runs=", "/compare?runs=,"):
+        page = client.get(url)
+        assert page.status_code == 200, url
+        assert 'id="compare-hint"' in page.text and "Compare selected" in page.text
+        assert 'id="compare-chart"' not in page.text
+    assert client.get("/compare?runs=999").status_code == 404  # a run that is not there is still named
