@@ -4,10 +4,9 @@ import math
 from datetime import datetime
 from typing import Annotated, Any
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
-from contract.store import INT32_MAX, GoalExample, GoalSet, Query, Rollout, Run, RunPhase, RunStatus, seconds_since
-from contract.store.models import Event
+from contract.store import INT32_MAX, Run, RunPhase, RunStatus, seconds_since
 
 
 def _storable_text(value: str) -> str:
@@ -53,6 +52,44 @@ def errors(*codes: int) -> dict[int | str, dict[str, Any]]:
 WRITE_ERRORS = (400, 401, 403, 413)
 
 
+class _RowWith:
+    """An ORM row seen with a few more attributes (they win over the row's own)."""
+
+    def __init__(self, row: Any, extra: dict[str, Any]) -> None:
+        self._row = row
+        self.__dict__.update(extra)
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "_row":
+            raise AttributeError(name)
+        return getattr(self._row, name)
+
+
+def row_with(row: Any, **extra: Any) -> Any:
+    """The row plus values that are not its columns (counts, latest metrics), for model_validate."""
+    return _RowWith(row, extra)
+
+
+class RowOut(BaseModel):
+    """A response read from an ORM row: Schema.model_validate(row, from_attributes=True), the row's attributes by
+    field name. Values the store does not hold come in with row_with(row, name=value); what follows from the row
+    alone (URLs, notes) is the schema's `derived`, in the fields' own places (so the JSON keeps its key order)."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    @classmethod
+    def derived(cls, row: Any) -> dict[str, Any]:
+        return {}
+
+    @model_validator(mode="before")
+    @classmethod
+    def _with_derived(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            return data
+        extra = cls.derived(data)
+        return row_with(data, **extra) if extra else data
+
+
 class HealthOut(BaseModel):
     status: str
     database: str
@@ -71,7 +108,7 @@ class GoalSetCreate(InputModel):
     )  # fmt: skip
 
 
-class GoalExampleOut(BaseModel):
+class GoalExampleOut(RowOut):
     id: int
     goal_set_id: int
     filename: str
@@ -88,7 +125,7 @@ class GoalExampleOut(BaseModel):
     )
 
     @classmethod
-    def of(cls, example: GoalExample) -> "GoalExampleOut":
+    def derived(cls, example: Any) -> dict[str, Any]:
         base = f"/api/goal-examples/{example.id}/image"
         crop_note = None
         if example.width != example.height:
@@ -99,40 +136,21 @@ class GoalExampleOut(BaseModel):
                 f"not square: the model sees the middle {side}×{side} of the {example.width}×{example.height} photo "
                 f"({kept}% of its {cut}; the {'left and right' if cut == 'width' else 'top and bottom'} edges cut off)"
             )
-        return cls(
-            id=example.id,
-            goal_set_id=example.goal_set_id,
-            filename=example.filename,
-            source=example.source,
-            original_media_type=example.original_media_type,
-            width=example.width,
-            height=example.height,
-            created_at=example.created_at,
-            original_url=f"{base}?kind=original",
-            model_url=f"{base}?kind=model",
-            display_url=f"{base}?kind=display",
-            crop_note=crop_note,
-        )
+        return {
+            "original_url": f"{base}?kind=original",
+            "model_url": f"{base}?kind=model",
+            "display_url": f"{base}?kind=display",
+            "crop_note": crop_note,
+        }
 
 
-class GoalSetOut(BaseModel):
+class GoalSetOut(RowOut):  # model_validate(row_with(goal_set, example_count=n))
     id: int
     name: str
     image_size: int
     env_id: str | None = Field(description="The task the photos show (None: made before sets knew their task).")
     created_at: datetime
     example_count: int
-
-    @classmethod
-    def of(cls, goal_set: GoalSet, example_count: int) -> "GoalSetOut":
-        return cls(
-            id=goal_set.id,
-            name=goal_set.name,
-            image_size=goal_set.image_size,
-            env_id=goal_set.env_id,
-            created_at=goal_set.created_at,
-            example_count=example_count,
-        )
 
 
 class GoalSetDetail(GoalSetOut):
@@ -191,7 +209,7 @@ class RunUpdate(InputModel):
     archived: bool | None = None
 
 
-class RolloutOut(BaseModel):
+class RolloutOut(RowOut):
     id: int
     env_step: int
     kind: str
@@ -203,18 +221,8 @@ class RolloutOut(BaseModel):
     url: str
 
     @classmethod
-    def of(cls, rollout: Rollout) -> "RolloutOut":
-        return cls(
-            id=rollout.id,
-            env_step=rollout.env_step,
-            kind=rollout.kind,
-            media_type=rollout.media_type,
-            frame_count=rollout.frame_count,
-            episode_return=rollout.episode_return,
-            success=rollout.success,
-            created_at=rollout.created_at,
-            url=f"/api/runs/{rollout.run_id}/rollout/latest?v={rollout.id}",
-        )
+    def derived(cls, rollout: Any) -> dict[str, Any]:
+        return {"url": f"/api/runs/{rollout.run_id}/rollout/latest?v={rollout.id}"}
 
 
 class QueryCountsOut(BaseModel):
@@ -225,7 +233,9 @@ class QueryCountsOut(BaseModel):
     skipped: int = 0
 
 
-class RunOut(BaseModel):
+class RunOut(RowOut):
+    # model_validate(row_with(run, queries=…, success_rate=…, steps_per_second=…, eta_seconds=…, waiting_reason=…,
+    # asks_queries=…)): the run's query counts, its latest metrics, why it waits, whether its algorithm asks.
     id: int
     name: str
     env_id: str
@@ -261,52 +271,22 @@ class RunOut(BaseModel):
     queries: QueryCountsOut
 
     @classmethod
-    def of(
-        cls,
-        run: Run,
-        *,
-        queries: dict[str, int],
-        success_rate: float | None,
-        steps_per_second: float | None,
-        eta_seconds: float | None,
-        waiting_reason: str | None = None,
-        asks_queries: bool = False,
-    ) -> "RunOut":
+    def derived(cls, run: Any) -> dict[str, Any]:
         active = run.status in RunStatus.ACTIVE
-        speed = steps_per_second if active else None  # a stopped run has no speed
-        next_step = next_query_step(run, asked=queries.get("asked", 0)) if asks_queries else None
+        speed = run.steps_per_second if active else None  # a stopped run has no speed
+        asks_queries = getattr(run, "asks_queries", False)
+        next_step = next_query_step(run, asked=run.queries.get("asked", 0)) if asks_queries else None
         next_seconds = None
         if next_step is not None and speed:
             next_seconds = max(0.0, (next_step - run.step) / speed)
-        return cls(
-            id=run.id,
-            name=run.name,
-            env_id=run.env_id,
-            algorithm=run.algorithm,
-            seed=run.seed,
-            goal_set_id=run.goal_set_id,
-            status=run.status,
-            status_reason=run.status_reason,
-            waiting_reason=waiting_reason,
-            priority=run.priority,
-            archived=run.archived,
-            stop_requested=run.stop_requested,
-            worker=run.worker,
-            step=run.step,
-            total_steps=run.total_steps,
-            created_at=run.created_at,
-            started_at=run.started_at,
-            finished_at=run.finished_at,
-            heartbeat_at=run.heartbeat_at,
-            heartbeat_age_seconds=seconds_since(run.heartbeat_at),
-            success_rate=success_rate,
-            steps_per_second=speed,
-            eta_seconds=eta_seconds if active else None,
-            phase=run.phase if active else None,
-            next_query_step=next_step,
-            next_query_seconds=next_seconds,
-            queries=QueryCountsOut(**queries),
-        )
+        return {
+            "heartbeat_age_seconds": seconds_since(run.heartbeat_at),
+            "steps_per_second": speed,
+            "eta_seconds": run.eta_seconds if active else None,
+            "phase": run.phase if active else None,
+            "next_query_step": next_step,
+            "next_query_seconds": next_seconds,
+        }
 
 
 def next_query_step(run: Run, *, asked: int) -> int | None:
@@ -321,13 +301,13 @@ def next_query_step(run: Run, *, asked: int) -> int | None:
     return following if not run.total_steps or following <= run.total_steps else None
 
 
-class RunDetail(RunOut):
+class RunDetail(RunOut):  # as RunOut, with config=run.config_values() and latest_rollout=the rollout row (or None)
     config: dict[str, Any]
     latest_rollout: RolloutOut | None
 
 
 # ---------------------------------------------------------------- queries
-class QueryOut(BaseModel):
+class QueryOut(RowOut):
     id: int
     run_id: int
     env_step: int
@@ -346,26 +326,15 @@ class QueryOut(BaseModel):
     display_image_url: str
 
     @classmethod
-    def of(cls, query: Query) -> "QueryOut":
+    def derived(cls, query: Any) -> dict[str, Any]:
         base = f"/api/queries/{query.id}/image"
-        return cls(
-            id=query.id,
-            run_id=query.run_id,
-            env_step=query.env_step,
-            score=query.score,
-            probability=_sigmoid(query.score),
-            strategy=query.strategy,
-            info=query.info or {},
-            ground_truth_success=query.ground_truth_success,
-            status=query.status,
-            answer=query.answer,
-            labeler=query.labeler,
-            answered_at=query.answered_at,
-            used_by_learner=query.used_at is not None,
-            created_at=query.created_at,
-            model_image_url=f"{base}?resolution=model",
-            display_image_url=f"{base}?resolution=display",
-        )
+        return {
+            "probability": _sigmoid(query.score),
+            "info": query.info or {},
+            "used_by_learner": query.used_at is not None,
+            "model_image_url": f"{base}?resolution=model",
+            "display_image_url": f"{base}?resolution=display",
+        }
 
 
 def _sigmoid(value: float) -> float:
@@ -406,18 +375,12 @@ class MetricsOut(BaseModel):
     )
 
 
-class EventOut(BaseModel):
+class EventOut(RowOut):
     id: int
     run_id: int | None
     level: str
     message: str
     created_at: datetime
-
-    @classmethod
-    def of(cls, event: Event) -> "EventOut":
-        return cls(
-            id=event.id, run_id=event.run_id, level=event.level, message=event.message, created_at=event.created_at
-        )
 
 
 # ---------------------------------------------------------------- sweeps and comparison

@@ -20,4 +20,5 @@ def run_events(
     limit: Annotated[int, Query(ge=1, le=1000)] = 200,
 ) -> list[EventOut]:
     store.get_run(run_id=run_id)
-    return [EventOut.of(event) for event in store.events(run_id=run_id, since_id=since_id, limit=limit)]
+    events = store.events(run_id=run_id, since_id=since_id, limit=limit)
+    return [EventOut.model_validate(event, from_attributes=True) for event in events]

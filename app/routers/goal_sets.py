@@ -6,7 +6,16 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, File, HTTPException, Query, Response, UploadFile, status
 
 from app.deps import GoalExampleId, GoalSetId, ReadAuth, SettingsDep, StoreDep, WriteAuth
-from app.schemas import WRITE_ERRORS, ErrorOut, GoalExampleOut, GoalSetCreate, GoalSetDetail, GoalSetOut, errors
+from app.schemas import (
+    WRITE_ERRORS,
+    ErrorOut,
+    GoalExampleOut,
+    GoalSetCreate,
+    GoalSetDetail,
+    GoalSetOut,
+    errors,
+    row_with,
+)
 from contract.images import ImageRejected, PreparedImage, prepare_upload
 
 router = APIRouter(tags=["goal sets"], responses=errors(401))
@@ -39,19 +48,24 @@ def create_goal_set(body: GoalSetCreate, store: StoreDep, _auth: WriteAuth) -> G
     """env_id: the task the photos show ("Start a run with this set" opens it; a run of another task is refused
     unless confirmed)."""
     goal_set = store.create_goal_set(name=body.name, image_size=body.image_size, env_id=body.env_id)
-    return GoalSetOut.of(goal_set, 0)
+    return GoalSetOut.model_validate(row_with(goal_set, example_count=0), from_attributes=True)
 
 
 @router.get("/api/goal-sets", response_model=list[GoalSetOut])
 def list_goal_sets(store: StoreDep, _auth: ReadAuth) -> list[GoalSetOut]:
-    return [GoalSetOut.of(goal_set, count) for goal_set, count in store.list_goal_sets()]
+    return [
+        GoalSetOut.model_validate(row_with(goal_set, example_count=count), from_attributes=True)
+        for goal_set, count in store.list_goal_sets()
+    ]
 
 
 @router.get("/api/goal-sets/{goal_set_id}", response_model=GoalSetDetail, responses=errors(404))
 def get_goal_set(goal_set_id: GoalSetId, store: StoreDep, _auth: ReadAuth) -> GoalSetDetail:
     goal_set = store.get_goal_set(goal_set_id=goal_set_id)
-    examples = [GoalExampleOut.of(example) for example in store.list_goal_examples(goal_set_id=goal_set_id)]
-    return GoalSetDetail(**GoalSetOut.of(goal_set, len(examples)).model_dump(), examples=examples)
+    examples = store.list_goal_examples(goal_set_id=goal_set_id)
+    return GoalSetDetail.model_validate(
+        row_with(goal_set, example_count=len(examples), examples=examples), from_attributes=True
+    )
 
 
 @router.delete(
@@ -66,7 +80,10 @@ def delete_goal_set(goal_set_id: GoalSetId, store: StoreDep, _auth: WriteAuth) -
 @router.get("/api/goal-sets/{goal_set_id}/examples", response_model=list[GoalExampleOut], responses=errors(404))
 def list_goal_examples(goal_set_id: GoalSetId, store: StoreDep, _auth: ReadAuth) -> list[GoalExampleOut]:
     store.get_goal_set(goal_set_id=goal_set_id)
-    return [GoalExampleOut.of(example) for example in store.list_goal_examples(goal_set_id=goal_set_id)]
+    return [
+        GoalExampleOut.model_validate(example, from_attributes=True)
+        for example in store.list_goal_examples(goal_set_id=goal_set_id)
+    ]
 
 
 @router.post(
@@ -140,7 +157,7 @@ def upload_goal_examples(
         )
         for image in prepared
     ]
-    return [GoalExampleOut.of(example) for example in stored]
+    return [GoalExampleOut.model_validate(example, from_attributes=True) for example in stored]
 
 
 @router.get(

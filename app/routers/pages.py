@@ -25,7 +25,7 @@ from app.deps import (
 from app.routers.compare import COMPARE_METRICS
 from app.routers.envs import task_settings_out
 from app.routers.runs import list_run_outs, run_detail, run_out
-from app.schemas import GoalExampleOut, GoalSetOut
+from app.schemas import GoalExampleOut, GoalSetOut, row_with
 from contract.algorithms import ALGORITHM_SPECS
 from contract.config import TrainConfig, config_reference
 from contract.envs import SIM_ENV_IDS, known_env_ids
@@ -38,9 +38,6 @@ router = APIRouter(include_in_schema=False)
 
 FALLBACK_TASKS: dict[str, str] = {"pusher": "VisualPusher-v0", "door": "VisualDoor-v0", "picker": "VisualPicker-v0"}
 OptionalId = Annotated[int | None, Query(ge=1, le=INT32_MAX)]
-# How many goal photos to give: the goal-set page warns below FEWEST and recommends RECOMMENDED or more (the
-# paper's real-robot tasks used PAPER).
-GOAL_PHOTOS = {"fewest": 5, "recommended": 10, "paper": 80}
 
 
 @dataclass(frozen=True)
@@ -95,7 +92,10 @@ def runs_page(request: Request, settings: SettingsDep, store: StoreDep, archived
 @router.get("/runs/new", response_class=HTMLResponse)
 def new_run_page(request: Request, settings: SettingsDep, store: StoreDep, goal_set: OptionalId = None):
     defaults = TrainConfig()
-    goal_sets = [GoalSetOut.of(goal_set_row, count) for goal_set_row, count in store.list_goal_sets()]
+    goal_sets = [
+        GoalSetOut.model_validate(row_with(row, example_count=count), from_attributes=True)
+        for row, count in store.list_goal_sets()
+    ]
     # the set asked for ("Start a run with this set"), else the newest; its task is the form's task
     chosen = next((g for g in goal_sets if g.id == goal_set), goal_sets[-1] if goal_sets else None)
     tasks = available_tasks()
@@ -147,7 +147,12 @@ def goal_sets_page(request: Request, settings: SettingsDep, store: StoreDep):
     goal_sets = []
     for goal_set, count in store.list_goal_sets():
         examples = store.list_goal_examples(goal_set_id=goal_set.id)[:6]
-        goal_sets.append((GoalSetOut.of(goal_set, count), [GoalExampleOut.of(example) for example in examples]))
+        goal_sets.append(
+            (
+                GoalSetOut.model_validate(row_with(goal_set, example_count=count), from_attributes=True),
+                [GoalExampleOut.model_validate(example, from_attributes=True) for example in examples],
+            )
+        )
     return _page(
         request, "goal_sets.html", settings, store, title="Goal sets", goal_sets=goal_sets, tasks=available_tasks()
     )
@@ -159,18 +164,20 @@ def goal_set_page(goal_set_id: GoalSetId, request: Request, settings: SettingsDe
         goal_set = store.get_goal_set(goal_set_id=goal_set_id)
     except NotFound as error:
         return _not_found(request, settings, store, str(error))
-    examples = [GoalExampleOut.of(example) for example in store.list_goal_examples(goal_set_id=goal_set_id)]
+    examples = [
+        GoalExampleOut.model_validate(example, from_attributes=True)
+        for example in store.list_goal_examples(goal_set_id=goal_set_id)
+    ]
     return _page(
         request,
         "goal_set.html",
         settings,
         store,
         title=goal_set.name,
-        goal_set=GoalSetOut.of(goal_set, len(examples)),
+        goal_set=GoalSetOut.model_validate(row_with(goal_set, example_count=len(examples)), from_attributes=True),
         examples=examples,
         max_upload_bytes=settings.max_upload_bytes,
         tasks=available_tasks(),
-        goal_photos=GOAL_PHOTOS,
     )
 
 
@@ -188,6 +195,8 @@ def compare_page(
             store.get_run(run_id=run_id)
         except NotFound as error:
             return _not_found(request, settings, store, str(error))
+    if not run_ids:
+        return _not_found(request, settings, store, "choose runs to compare on the runs page")
     metric = metric if metric in COMPARE_METRICS else "eval/success_rate"
     return _page(
         request, "compare.html", settings, store, title="Compare runs", run_ids=run_ids, metric=metric,

@@ -14,8 +14,14 @@ from app.deps import QueryId, ReadAuth, StoreDep, WriteAuth
 from app.routers.runs import run_out
 from app.schemas import WRITE_ERRORS, AnswerIn, GoalExampleOut, QueryOut, QueueItem, SkipIn, errors
 from contract.store import INT32_MAX, NotFound, QueryStatus, Store
+from contract.store import Query as QueryRow
 
 router = APIRouter(prefix="/api/queries", tags=["queries"], responses=errors(401))
+
+
+def query_out(query: QueryRow) -> QueryOut:
+    return QueryOut.model_validate(query, from_attributes=True)
+
 
 RunFilter = Annotated[int | None, Query(ge=1, le=INT32_MAX, description="Only this run's queries.")]
 
@@ -33,7 +39,7 @@ async def list_queries(
     rows = await run_in_threadpool(
         store.list_queries, run_id=run_id, status=status, limit=limit, oldest_first=oldest_first
     )
-    return [QueryOut.of(query) for query in rows]
+    return [query_out(query) for query in rows]
 
 
 @router.get("/next", response_model=QueueItem, responses=errors(404))
@@ -65,11 +71,14 @@ def _queue_item(store: Store, run_id: int | None) -> QueueItem:
     examples: list[GoalExampleOut] = []
     if run.goal_set_id is not None:
         try:
-            examples = [GoalExampleOut.of(e) for e in store.list_goal_examples(goal_set_id=run.goal_set_id)]
+            examples = [
+                GoalExampleOut.model_validate(example, from_attributes=True)
+                for example in store.list_goal_examples(goal_set_id=run.goal_set_id)
+            ]
         except NotFound:
             examples = []
     return QueueItem(
-        query=QueryOut.of(query),
+        query=query_out(query),
         pending=pending,
         pending_all_runs=pending_all_runs,
         run=run_out(store, run),
@@ -79,7 +88,7 @@ def _queue_item(store: Store, run_id: int | None) -> QueueItem:
 
 @router.get("/{query_id}", response_model=QueryOut, responses=errors(404))
 async def get_query(query_id: QueryId, store: StoreDep, _auth: ReadAuth) -> QueryOut:
-    return QueryOut.of(await run_in_threadpool(store.get_query, query_id=query_id))
+    return query_out(await run_in_threadpool(store.get_query, query_id=query_id))
 
 
 @router.get(
@@ -100,16 +109,16 @@ def query_image(
 async def answer_query(query_id: QueryId, body: AnswerIn, store: StoreDep, _auth: WriteAuth) -> QueryOut:
     """The same answer twice is fine; a different second answer is 409 and the first is kept."""
     answer = {"query_id": query_id, "success": body.success, "labeler": body.labeler}
-    return QueryOut.of(await run_in_threadpool(store.answer_query, **answer))
+    return query_out(await run_in_threadpool(store.answer_query, **answer))
 
 
 @router.post("/{query_id}/skip", response_model=QueryOut, responses=errors(404, 409, *WRITE_ERRORS))
 async def skip_query(query_id: QueryId, store: StoreDep, _auth: WriteAuth, body: SkipIn | None = None) -> QueryOut:
     labeler = body.labeler if body else ""
-    return QueryOut.of(await run_in_threadpool(store.skip_query, query_id=query_id, labeler=labeler))
+    return query_out(await run_in_threadpool(store.skip_query, query_id=query_id, labeler=labeler))
 
 
 @router.post("/{query_id}/undo", response_model=QueryOut, responses=errors(404, 409, *WRITE_ERRORS))
 async def undo_answer(query_id: QueryId, store: StoreDep, _auth: WriteAuth) -> QueryOut:
     """Back to pending, while the learner has not used the answer (409 once it has)."""
-    return QueryOut.of(await run_in_threadpool(store.undo_answer, query_id=query_id))
+    return query_out(await run_in_threadpool(store.undo_answer, query_id=query_id))

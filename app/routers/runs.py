@@ -11,7 +11,6 @@ from fastapi import APIRouter, HTTPException, Query, Response, status
 from app.deps import ReadAuth, RunId, SettingsDep, StoreDep, WriteAuth
 from app.schemas import (
     WRITE_ERRORS,
-    RolloutOut,
     RunContinue,
     RunCreate,
     RunDetail,
@@ -19,6 +18,7 @@ from app.schemas import (
     RunUpdate,
     SweepCreate,
     errors,
+    row_with,
 )
 from contract.algorithms import ALGORITHM_SPECS
 from contract.checkpoint_location import is_remote, run_folder
@@ -34,26 +34,27 @@ _config_adapter = pydantic.TypeAdapter(TrainConfig)
 
 
 def run_out(store: Store, run: Run, waiting: dict[int, str] | None = None) -> RunOut:
+    return RunOut.model_validate(row_with(run, **_run_values(store, run, waiting)), from_attributes=True)
+
+
+def _run_values(store: Store, run: Run, waiting: dict[int, str] | None = None) -> dict[str, Any]:
+    """What RunOut shows beside the run's columns: its query counts, latest metrics, why it waits."""
     if waiting is None and run.status == "queued":
         waiting = store.queue_report()
-    return RunOut.of(
-        run,
-        queries=store.query_counts(run_id=run.id),
-        success_rate=store.latest_metric(run_id=run.id, name="eval/success_rate"),
-        steps_per_second=store.latest_metric(run_id=run.id, name="perf/steps_per_second"),
-        eta_seconds=store.latest_metric(run_id=run.id, name="perf/eta_seconds"),
-        waiting_reason=(waiting or {}).get(run.id),
-        asks_queries=bool(getattr(ALGORITHM_SPECS.get(run.algorithm), "queries", False)),
-    )
+    return {
+        "queries": store.query_counts(run_id=run.id),
+        "success_rate": store.latest_metric(run_id=run.id, name="eval/success_rate"),
+        "steps_per_second": store.latest_metric(run_id=run.id, name="perf/steps_per_second"),
+        "eta_seconds": store.latest_metric(run_id=run.id, name="perf/eta_seconds"),
+        "waiting_reason": (waiting or {}).get(run.id),
+        "asks_queries": bool(getattr(ALGORITHM_SPECS.get(run.algorithm), "queries", False)),
+    }
 
 
 def run_detail(store: Store, run: Run) -> RunDetail:
-    rollout = store.latest_rollout(run_id=run.id)
-    return RunDetail(
-        **run_out(store, run).model_dump(),
-        config=run.config or {},
-        latest_rollout=RolloutOut.of(rollout) if rollout is not None else None,
-    )
+    values = {**_run_values(store, run), "latest_rollout": store.latest_rollout(run_id=run.id)}
+    config = run.config or {}
+    return RunDetail.model_validate(row_with(run, **values, config=config), from_attributes=True)
 
 
 def _field_error(location: list[str | int], field: str, message: str) -> dict[str, Any]:
