@@ -21,7 +21,6 @@ Targets: p99 <= 50 ms, 0 errors, 0 lost.
 
 import argparse
 import gc
-import glob
 import json
 import multiprocessing as mp
 import os
@@ -52,6 +51,7 @@ from contract.config import TrainConfig  # noqa: E402
 from contract.envs import encode_png  # noqa: E402
 from contract.store import INT32_MAX, QueryStatus, RunStatus, Store  # noqa: E402
 from learner import testing_envs  # noqa: E402
+from tests.pg_server import PostgresServer  # noqa: E402
 
 ENV = "learner.testing_envs:DotReach-v0"
 
@@ -65,35 +65,10 @@ def free_port() -> int:
 # ---------------------------------------------------------------- the database
 @contextmanager
 def postgres_server() -> Iterator[str]:
-    """A throw-away PostgreSQL (Debian's package) on 127.0.0.1; as root it runs as the `postgres` user."""
-
-    def binary(name: str) -> str:
-        found = sorted(glob.glob(f"/usr/lib/postgresql/*/bin/{name}"))
-        if not found:
-            raise SystemExit(f"{name} not found: apt-get install postgresql (or pass --database-url)")
-        return found[-1]
-
-    def as_user(command: list[str]) -> list[str]:
-        return ["runuser", "-u", "postgres", "--", *command] if os.geteuid() == 0 else command
-
-    base = Path(tempfile.mkdtemp(prefix="raq-load-pg-"))
-    data, sockets = base / "pgdata", base / "pgsockets"
-    sockets.mkdir(parents=True)
-    if os.geteuid() == 0:
-        shutil.chown(base, "postgres")
-        shutil.chown(sockets, "postgres")
-    port = free_port()
-    run = {"check": True, "capture_output": True, "text": True}
-    subprocess.run(as_user([binary("initdb"), "-D", str(data), "-U", "raq", "--auth=trust"]), **run)
-    options = f"-p {port} -k {sockets} -c listen_addresses=127.0.0.1 -c max_connections=200"
-    pg_ctl = binary("pg_ctl")
-    subprocess.run(as_user([pg_ctl, "-D", str(data), "-o", options, "-l", str(base / "pg.log"), "-w", "start"]), **run)
-    try:
-        subprocess.run(as_user([binary("createdb"), "-h", "127.0.0.1", "-p", str(port), "-U", "raq", "raq"]), **run)
-        yield f"postgresql+psycopg://raq@127.0.0.1:{port}/raq"
-    finally:
-        subprocess.run(as_user([pg_ctl, "-D", str(data), "-m", "fast", "-w", "stop"]), capture_output=True)
-        shutil.rmtree(base, ignore_errors=True)
+    """A throw-away PostgreSQL (Debian's package, by tests/pg_server.py) on 127.0.0.1, with room for every
+    connection and fsync on as in production (the last -c of a setting wins over the helper's fsync=off)."""
+    with PostgresServer.started(extra_options="-c max_connections=200 -c fsync=on") as server:
+        yield server.url
 
 
 def run_config(seed: int) -> TrainConfig:

@@ -15,6 +15,7 @@ from pathlib import Path
 import httpx
 import pytest
 from fastapi.testclient import TestClient
+from pg_server import PostgresServer
 from PIL import Image
 
 from app.main import create_app
@@ -55,6 +56,13 @@ def database_url(tmp_path: Path) -> str:
     url = f"sqlite:///{tmp_path / 'raq.sqlite3'}"
     upgrade(url)
     return url
+
+
+@pytest.fixture(scope="module")
+def postgres_url() -> Iterator[str]:
+    """A throw-away PostgreSQL server (tests/pg_server.py) that the test module shares: its database `raq`."""
+    with PostgresServer.started() as server:
+        yield server.url
 
 
 @pytest.fixture
@@ -184,7 +192,7 @@ def run_live_server(database_url: str, tmp_path: Path, env_overrides: dict[str, 
     with log_path.open("wb") as log:
         process = subprocess.Popen(
             [sys.executable, "-m", "uvicorn", "--factory", "app.main:create_app",
-             "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning"],
+             "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning", "--no-proxy-headers"],
             cwd=tmp_path, env={**env, "PYTHONPATH": str(ROOT)}, stdout=log, stderr=subprocess.STDOUT,
         )  # fmt: skip
         base_url = f"http://127.0.0.1:{port}"

@@ -1,23 +1,16 @@
-"""The same store on PostgreSQL (DATABASE_URL): a real server started for the tests on 127.0.0.1.
+"""The same store on PostgreSQL (DATABASE_URL): a real server started for the tests on 127.0.0.1 (the postgres_url
+fixture of conftest.py, by tests/pg_server.py).
 
 `make test` installs Debian's postgresql package; initdb refuses to run as root, so as root the server runs
 as the `postgres` user that the package creates.
 """
 
-import glob
 import multiprocessing as mp
-import os
-import shutil
-import subprocess
-import tempfile
 import threading
 import time
-from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import pytest
-from conftest import free_port
 from sqlalchemy import inspect, text
 from test_store import _claim_all, check_answer_numbers_heal  # the same checks as on SQLite
 
@@ -26,42 +19,6 @@ from contract.store import Conflict, Store
 from contract.store.db import IDLE_PING_S
 
 PNG = b"\x89PNG\r\n\x1a\nquery"
-
-
-def postgres_binary(name: str) -> str:
-    found = sorted(glob.glob(f"/usr/lib/postgresql/*/bin/{name}"))
-    assert found, f"{name} not found: `make test` installs Debian's postgresql package"
-    return found[-1]
-
-
-def as_server_user(command: list[str]) -> list[str]:
-    return ["runuser", "-u", "postgres", "--", *command] if os.geteuid() == 0 else command
-
-
-@pytest.fixture(scope="module")
-def postgres_url() -> Iterator[str]:
-    base = Path(tempfile.mkdtemp(prefix="raq-pg-"))
-    data, sockets = base / "data", base / "sockets"
-    sockets.mkdir()
-    if os.geteuid() == 0:
-        shutil.chown(base, "postgres")
-        shutil.chown(sockets, "postgres")
-    port = free_port()
-    run = {"check": True, "capture_output": True, "text": True}
-    subprocess.run(as_server_user([postgres_binary("initdb"), "-D", str(data), "-U", "raq", "--auth=trust"]), **run)
-    options = f"-p {port} -k {sockets} -c listen_addresses=127.0.0.1 -c fsync=off"
-    pg_ctl = postgres_binary("pg_ctl")
-    subprocess.run(
-        as_server_user([pg_ctl, "-D", str(data), "-o", options, "-l", str(base / "log"), "-w", "start"]), **run
-    )
-    try:
-        subprocess.run(
-            as_server_user([postgres_binary("createdb"), "-h", "127.0.0.1", "-p", str(port), "-U", "raq", "raq"]), **run
-        )
-        yield f"postgresql+psycopg://raq@127.0.0.1:{port}/raq"
-    finally:
-        subprocess.run(as_server_user([pg_ctl, "-D", str(data), "-m", "fast", "-w", "stop"]), capture_output=True)
-        shutil.rmtree(base, ignore_errors=True)
 
 
 def test_migrations_run_up_and_down_on_postgresql(postgres_url: str) -> None:

@@ -23,7 +23,6 @@ import torch
 from conftest import answer_at_once, free_port
 from sqlalchemy import create_engine, text
 from test_learner_run import tiny_config
-from test_postgres import postgres_url  # noqa: F401  (the module's own PostgreSQL server)
 
 import contract.store.runs as store_module
 from app.migrate import upgrade
@@ -80,7 +79,7 @@ def s3_env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]
 
 
 @pytest.fixture
-def fresh_postgres(postgres_url: str) -> Iterator[str]:  # noqa: F811
+def fresh_postgres(postgres_url: str) -> Iterator[str]:
     """A new, migrated database on the module's PostgreSQL server, for one test."""
     name = f"raq_{uuid.uuid4().hex[:12]}"
     admin = create_engine(postgres_url, isolation_level="AUTOCOMMIT")
