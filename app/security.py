@@ -1,24 +1,30 @@
 """What every request goes through before any route runs.
 
 RequestGuard (an ASGI middleware, outermost) does, in this order, before a byte of the body is read:
+0. takes the client address from X-Forwarded-For only when the request comes from one of RAQ_TRUSTED_PROXIES
+   (uvicorn's own proxy-header handling is off: `raq serve` starts it with proxy_headers=False).
 1. with RAQ_API_TOKEN set, refuses a request that carries neither the bearer token nor a live login session:
    pages (GET) are redirected to /login, everything else gets 401; only /login, /logout, /health and /static
-   are public. The body of a refused request is never read.
+   are public. The body of a refused request is never read. Wrong bearer tokens count against the client
+   address's login limit (RAQ_LOGIN_ATTEMPTS_PER_MINUTE, shared with /login): once over it every bearer request
+   from that address, the right token included, is 429 with Retry-After until the window frees a try.
 2. caps the body: a Content-Length over the route's limit is 413 at once; a body without one (chunked) is
    counted as it arrives and refused with 413 as soon as it passes the limit.
 3. adds X-Content-Type-Options: nosniff, a Content-Security-Policy and friends to every response.
 """
 
+import ipaddress
 import re
 from urllib.parse import quote
 
 from fastapi import HTTPException
 from fastapi.responses import JSONResponse, RedirectResponse
+from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import Headers, MutableHeaders
 from starlette.requests import Request
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from app.deps import AUTHORISED_STATE, UNAUTHORISED_DETAIL, is_authorised_async
+from app.deps import AUTHORISED_STATE, UNAUTHORISED_DETAIL, has_bearer_token, is_authorised_async
 from app.routers.goal_sets import MAX_FILES_PER_UPLOAD
 from contract.settings import Settings
 from contract.store import Store
@@ -59,12 +65,80 @@ def is_page(path: str) -> bool:
     return not (path.startswith("/api/") or path == "/api" or path == "/openapi.json")
 
 
+def _parse_address(text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
+    text = text.strip()
+    if text.startswith("[") and "]" in text:  # [v6]:port
+        text = text[1 : text.index("]")]
+    elif text.count(":") == 1:  # v4:port
+        text = text.partition(":")[0]
+    try:
+        return ipaddress.ip_address(text)
+    except ValueError:
+        return None
+
+
+def client_address(peer: str, forwarded_for: list[str], trusted: tuple[str, ...]) -> str:
+    """The client a request is from: its peer, unless the peer is a trusted proxy; then the right-most address of
+    X-Forwarded-For that is not a trusted proxy (each proxy appends the address it was reached from, so only the
+    entries the trusted proxies added are believed; a client can put anything on the left)."""
+    if not trusted or not forwarded_for:
+        return peer
+    networks = [ipaddress.ip_network(item, strict=False) for item in trusted]
+
+    def is_trusted(address: ipaddress.IPv4Address | ipaddress.IPv6Address | None) -> bool:
+        return address is not None and any(address in network for network in networks)
+
+    if not is_trusted(_parse_address(peer)):
+        return peer
+    hops = [hop.strip() for value in forwarded_for for hop in value.split(",") if hop.strip()]
+    for hop in reversed(hops):
+        address = _parse_address(hop)
+        if address is None:
+            return peer  # junk where a proxy's entry should be: believe nothing
+        if not is_trusted(address):
+            return str(address)
+    return peer
+
+
+def _bearer_presented(scope: Scope) -> bool:
+    scheme, _, credentials = Headers(scope=scope).get("authorization", "").partition(" ")
+    return scheme.lower() == "bearer" and bool(credentials.strip())
+
+
+def too_many_tries(wait: int) -> JSONResponse:
+    return JSONResponse(
+        {"detail": f"too many wrong tokens from your address: try again in {wait} s"},
+        status_code=429, headers={"Retry-After": str(wait)},
+    )  # fmt: skip
+
+
 class RequestGuard:
     def __init__(self, app: ASGIApp, *, settings: Settings, store: Store, upload_limit: int) -> None:
         self.app = app
         self.settings = settings
         self.store = store
         self.upload_limit = upload_limit
+
+    def _resolve_client(self, scope: Scope) -> None:
+        """scope["client"] as the client address every route and limit sees (X-Forwarded-For via trusted proxies)."""
+        if not self.settings.trusted_proxies or not scope.get("client"):
+            return
+        peer, port = scope["client"]
+        forwarded = [value.decode("latin-1") for name, value in scope["headers"] if name == b"x-forwarded-for"]
+        address = client_address(peer, forwarded, self.settings.trusted_proxies)
+        if address != peer:
+            scope["client"] = (address, 0)
+
+    async def _token_limit(self, scope: Scope, *, authorised: bool) -> JSONResponse | None:
+        """A wrong bearer token is a failed try of the client's address (as a wrong /login is); an address over
+        its limit is refused (429), whatever token it sends, until a try frees up."""
+        client = scope["client"][0] if scope.get("client") else "unknown"
+        per_minute = self.settings.login_attempts_per_minute
+        if authorised:
+            wait = await run_in_threadpool(lambda: self.store.login_wait(client=client, per_minute=per_minute))
+        else:
+            wait = await run_in_threadpool(lambda: self.store.login_attempt(client=client, per_minute=per_minute))
+        return too_many_tries(wait) if wait is not None else None
 
     def body_limit(self, method: str, path: str) -> int:
         if method == "POST" and UPLOAD_PATH.match(path):
@@ -97,6 +171,7 @@ class RequestGuard:
                 headers["content-security-policy"] = csp
             await send(message)
 
+        self._resolve_client(scope)
         refusal = await self._refusal(scope)
         if refusal is not None:
             # The body stays unread: uvicorn closes the connection after this response instead of reading it.
@@ -110,8 +185,16 @@ class RequestGuard:
         if self.settings.api_token and not is_public(path):
             request = Request(scope)  # headers and cookies only; nothing here touches the body
             if await is_authorised_async(request, self.settings, self.store):
+                if has_bearer_token(request, self.settings.api_token):
+                    limited = await self._token_limit(scope, authorised=True)
+                    if limited is not None:
+                        return limited
                 scope.setdefault("state", {})[AUTHORISED_STATE] = True  # the routes' checks need not look again
             else:
+                if _bearer_presented(scope):
+                    limited = await self._token_limit(scope, authorised=False)
+                    if limited is not None:
+                        return limited
                 if method in ("GET", "HEAD") and is_page(path):
                     target = path + (f"?{scope['query_string'].decode('latin-1')}" if scope["query_string"] else "")
                     return RedirectResponse(f"/login?next={quote(target, safe='')}", status_code=303)

@@ -46,9 +46,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
         return 2
     _migrate(settings)
     # Several processes share nothing but the database (the login rate limit and sessions live there too).
+    # X-Forwarded-For is read by the app itself, only from RAQ_TRUSTED_PROXIES (uvicorn's own trusts loopback).
     uvicorn.run(
-        "app.main:create_app", factory=True, host=host, port=port, log_level=args.log_level, workers=args.workers
-    )
+        "app.main:create_app", factory=True, host=host, port=port, log_level=args.log_level, workers=args.workers,
+        proxy_headers=False,
+    )  # fmt: skip
     return 0
 
 

@@ -1,5 +1,6 @@
 """One Settings object for every process, read from RAQ_* environment variables (and .env)."""
 
+import ipaddress
 from functools import lru_cache
 from pathlib import Path
 from typing import Annotated
@@ -32,6 +33,14 @@ class Settings(BaseSettings):
     login_attempts_per_minute: int = Field(
         default=10, ge=1, le=10_000, description="Failed /login attempts one client address may make per minute."
     )
+    trusted_proxies: Annotated[tuple[str, ...], NoDecode] = Field(
+        default=(),
+        description="Addresses or networks (10.0.0.5, 10.0.0.0/8, ::1) of the reverse proxies in front of the web "
+        "server. Only a request that arrives from one of them has its X-Forwarded-For read, for the client address "
+        "the login and token rate limit counts (and sessions record); from anywhere else, loopback included, the "
+        "header is ignored. Empty (the default): never read. Comma-separated in RAQ_TRUSTED_PROXIES.",
+    )
+    """Reverse proxies whose X-Forwarded-For is believed (RAQ_TRUSTED_PROXIES, comma-separated); empty: none."""
     max_json_bytes: int = Field(
         default=1024 * 1024, ge=1024, le=64 * 1024 * 1024, description="Largest body of any request but an upload."
     )
@@ -70,6 +79,23 @@ class Settings(BaseSettings):
         for name in value:
             if not all(part.isidentifier() for part in name.split(".")):
                 raise ValueError(f"{name!r} is not a Python module name")
+        return value
+
+    @field_validator("trusted_proxies", mode="before")
+    @classmethod
+    def _split_proxies(cls, value: object) -> object:
+        if isinstance(value, str):
+            return tuple(item.strip() for item in value.split(",") if item.strip())
+        return value
+
+    @field_validator("trusted_proxies")
+    @classmethod
+    def _proxy_networks(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        for item in value:
+            try:
+                ipaddress.ip_network(item, strict=False)
+            except ValueError:
+                raise ValueError(f"{item!r} is not an IP address or network (such as 10.0.0.5 or 10.0.0.0/8)") from None
         return value
 
     @field_validator("api_token")
