@@ -38,6 +38,9 @@ router = APIRouter(include_in_schema=False)
 
 FALLBACK_TASKS: dict[str, str] = {"pusher": "VisualPusher-v0", "door": "VisualDoor-v0", "picker": "VisualPicker-v0"}
 OptionalId = Annotated[int | None, Query(ge=1, le=INT32_MAX)]
+# How many goal photos to give: the goal-set page warns below FEWEST and recommends RECOMMENDED or more (the
+# paper's real-robot tasks used PAPER).
+GOAL_PHOTOS = {"fewest": 5, "recommended": 10, "paper": 80}
 
 
 @dataclass(frozen=True)
@@ -178,6 +181,7 @@ def goal_set_page(goal_set_id: GoalSetId, request: Request, settings: SettingsDe
         examples=examples,
         max_upload_bytes=settings.max_upload_bytes,
         tasks=available_tasks(),
+        goal_photos=GOAL_PHOTOS,
     )
 
 
@@ -195,8 +199,6 @@ def compare_page(
             store.get_run(run_id=run_id)
         except NotFound as error:
             return _not_found(request, settings, store, str(error))
-    if not run_ids:
-        return _not_found(request, settings, store, "choose runs to compare on the runs page")
     metric = metric if metric in COMPARE_METRICS else "eval/success_rate"
     return _page(
         request, "compare.html", settings, store, title="Compare runs", run_ids=run_ids, metric=metric,
