@@ -53,7 +53,7 @@ def _run_values(store: Store, run: Run, waiting: dict[int, str] | None = None) -
 
 def run_detail(store: Store, run: Run) -> RunDetail:
     values = {**_run_values(store, run), "latest_rollout": store.latest_rollout(run_id=run.id)}
-    config = run.config or {}
+    config = run.config_values()
     return RunDetail.model_validate(row_with(run, **values, config=config), from_attributes=True)
 
 

@@ -12,6 +12,7 @@ from sqlalchemy import delete, func, or_, select, update
 from contract.store.base import StoreBase, compare_and_set, found, retry_lost_races
 from contract.store.errors import Conflict, InvalidInput, NotFound
 from contract.store.models import (
+    COLUMN_CONFIG_FIELDS,
     Event,
     GoalSet,
     Metric,
@@ -49,7 +50,7 @@ class RunStore(StoreBase):
                 name=name,
                 env_id=env_id,
                 algorithm=algorithm,
-                config=config,
+                config={key: value for key, value in config.items() if key not in COLUMN_CONFIG_FIELDS},
                 seed=seed,
                 goal_set_id=goal_set_id,
                 total_steps=total_steps,
