@@ -4,9 +4,10 @@ Only modules the operator lists in RAQ_ENV_MODULES (and their submodules) are ev
 the project's own `sim`: the server refuses any other env id when the run is created (`env_id_problem`), and
 the learner checks again before it imports anything (`_import_for`).
 
-The env's observation must be an RGB image (HWC or CHW; uint8, or float in [0, 1]), or a dict holding one
-under "image" or "pixels". Observations of another size are resized to image_size. info["success"] is used
-when the env reports it (evaluation success rate, sparse reward, ground truth on queries) and is optional.
+The env's observation must be an RGB image (HWC or CHW; uint8, or float in [0, 1], finite), or a dict holding
+one under "image" or "pixels" (`observation_problem` is the check; anything else fails the run at once).
+Observations of another size are resized to image_size. info["success"] is used when the env reports it
+(evaluation success rate, sparse reward, ground truth on queries) and is optional.
 """
 
 import difflib
@@ -138,22 +139,67 @@ def scale_action(action: np.ndarray, space: gym.spaces.Box) -> np.ndarray:
     return (low + (action + 1.0) * 0.5 * (high - low)).astype(space.dtype)
 
 
-def as_rgb(image: Any) -> np.ndarray:
-    """Any RGB image the env may give -> uint8 HWC."""
+class BadObservation(ValueError):
+    """An observation that is not an image the networks can take (observation_problem says why)."""
+
+
+IMAGE_RULE = "an image must be H x W x 3 (or 3 x H x W), uint8, or float in [0, 1]"
+
+
+def _image_array(image: Any) -> tuple[np.ndarray | None, str | None]:
+    """The observation's image as an array in HWC with 3 or 4 channels, or None and why it is not one."""
     if isinstance(image, dict):
         for key in ("image", "pixels", "rgb"):
             if key in image:
-                return as_rgb(image[key])
-        raise ValueError(f"dict observation without an 'image' or 'pixels' key: {sorted(image)}")
-    array = np.asarray(image)
+                return _image_array(image[key])
+        return None, f"observation is a dict without an 'image' or 'pixels' key ({sorted(map(str, image))})"
+    try:
+        array = np.asarray(image)
+    except Exception as error:  # noqa: BLE001 - a ragged list, an object numpy cannot take
+        return None, f"observation is not an array ({type(error).__name__}); {IMAGE_RULE}"
+    if array.dtype != np.uint8 and not np.issubdtype(array.dtype, np.floating):
+        what = type(image).__name__ if array.dtype.kind in "OUSV" else f"dtype {array.dtype}"
+        return None, f"observation is {what}, not an image; {IMAGE_RULE}"
     if array.ndim == 3 and array.shape[0] in (3, 4) and array.shape[-1] not in (3, 4):
         array = array.transpose(1, 2, 0)
-    if array.ndim != 3 or array.shape[-1] not in (3, 4):
-        raise ValueError(f"observation must be an RGB image (H, W, 3), not shape {array.shape}")
+    if array.ndim != 3 or array.shape[-1] not in (3, 4) or 0 in array.shape:
+        return None, f"observation has shape {array.shape}, not an RGB image; {IMAGE_RULE}"
+    return array, None
+
+
+def observation_problem(observation: Any) -> str | None:
+    """Why the env's observation is not an image the networks can take, or None when it is one: an RGB image
+    (H x W x 3, or 3 x H x W; a fourth, alpha channel is dropped; or a dict holding one under "image" or
+    "pixels"), uint8 or float in [0, 1], with no NaN or infinite values. The one check the server's env preview
+    (at run creation) and the learner (on every observation it converts) make."""
+    array, problem = _image_array(observation)
+    if array is None or array.dtype == np.uint8:
+        return problem
+    if np.isnan(array).any():
+        return "observation has NaN values"
+    if not np.isfinite(array).all():
+        return "observation has infinite values"
+    low, high = float(array.min()), float(array.max())
+    if low < 0.0 or high > 1.0:
+        return f"observation is float with values from {low:g} to {high:g}; a float image must be in [0, 1]"
+    return None
+
+
+def check_observation(observation: Any, env_id: str) -> None:
+    """BadObservation("<env id>: <problem>") when observation_problem finds one."""
+    problem = observation_problem(observation)
+    if problem is not None:
+        raise BadObservation(f"{env_id}: {problem}")
+
+
+def as_rgb(image: Any, env_id: str = "the env") -> np.ndarray:
+    """An image the env gives (observation_problem finds nothing wrong with it) -> uint8 HWC; else BadObservation."""
+    check_observation(image, env_id)
+    array, _problem = _image_array(image)
+    assert array is not None
     array = array[..., :3]
     if array.dtype != np.uint8:
-        scale = 255.0 if array.max(initial=0) <= 1.0 else 1.0
-        array = np.clip(array.astype(np.float32) * scale, 0, 255).round().astype(np.uint8)
+        array = (array.astype(np.float32) * 255.0).round().astype(np.uint8)
     return np.ascontiguousarray(array)
 
 
@@ -164,9 +210,10 @@ def resize(image: np.ndarray, size: int) -> np.ndarray:
     return np.array(Image.fromarray(image).resize((size, size), Image.Resampling.BILINEAR, reducing_gap=None))
 
 
-def model_image(observation: Any, image_size: int) -> np.ndarray:
-    """The env's observation as the networks see it: uint8 (image_size, image_size, 3)."""
-    return resize(as_rgb(observation), image_size)
+def model_image(observation: Any, image_size: int, env_id: str = "the env") -> np.ndarray:
+    """The env's observation as the networks see it: uint8 (image_size, image_size, 3); BadObservation naming
+    env_id when it is not an image (observation_problem)."""
+    return resize(as_rgb(observation, env_id), image_size)
 
 
 def display_image(env: gym.Env, size: int, fallback: np.ndarray) -> np.ndarray:
@@ -268,7 +315,7 @@ def first_frames(env_id: str, *, image_size: int, display_size: int, seed: int =
     env = make_env(env_id, image_size=image_size, display_size=display_size)
     try:
         observation, info = env.reset(seed=seed)
-        image = model_image(observation, image_size)
+        image = model_image(observation, image_size, env_id)
         display = display_image(env, display_size, image)
         space = env.action_space
         success = "reports success" if success_of(info) is not None else "reports no success (no ground truth)"

@@ -105,7 +105,7 @@ class Evaluator:
         episodes = []
         for index, env in enumerate(self.envs[:count]):
             raw, info = env.reset(seed=cfg.seed * 100_003 + 1_000_000 + step + first + index)
-            obs = model_image(raw, cfg.image_size)
+            obs = model_image(raw, cfg.image_size, cfg.env_id)
             episode = Episode(obs=obs, success=success_of(info))
             if first + index == 0:  # the recorded rollout
                 episode.frames.append(display_image(env, cfg.rollout_size, obs))
@@ -119,7 +119,7 @@ class Evaluator:
             for index, action in zip(running, actions, strict=True):
                 env, episode = self.envs[index], episodes[index]
                 raw, reward, terminated, truncated, info = env.step(scale_action(action, self.action_space))
-                episode.obs = model_image(raw, cfg.image_size)
+                episode.obs = model_image(raw, cfg.image_size, cfg.env_id)
                 episode.total += float(reward)
                 episode.next_obs.append(episode.obs)
                 episode.success = success_of(info)

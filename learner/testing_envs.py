@@ -63,6 +63,54 @@ class DotReach(gym.Env[np.ndarray, np.ndarray]):
         self.position = np.asarray(snapshot, dtype=np.float32).copy()
 
 
+class BadObservationDot(DotReach):
+    """DotReach whose observations are not images the networks can take, from step `bad_from` on (0: at reset):
+    "nan" (a float image with NaN values), "huge" (float values up to 1e9), "text" (a string), "gray" (H x W).
+    Its render() is the ordinary one. Registered as VisualNaN-v0, VisualNaNLater-v0 (NaN from the third step),
+    VisualHuge-v0, VisualText-v0 and VisualGray-v0."""
+
+    def __init__(self, bad: str = "nan", bad_from: int = 0, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.bad, self.bad_from, self.steps = bad, bad_from, 0
+
+    def _observation(self) -> Any:
+        image = self._draw(self.obs_size)
+        if self.steps < self.bad_from:
+            return image
+        if self.bad == "nan":
+            spoilt = image.astype(np.float32) / 255.0
+            spoilt[0, 0] = np.nan
+            return spoilt
+        if self.bad == "huge":
+            spoilt = image.astype(np.float32) * (1e9 / 255.0)
+            spoilt[0, 0], spoilt[-1, -1] = 0.0, 1e9
+            return spoilt
+        if self.bad == "text":
+            return "a picture of a dot"
+        if self.bad == "gray":
+            return image[..., 0]
+        raise ValueError(f"unknown kind of bad observation {self.bad!r}")
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        _image, info = super().reset(seed=seed, options=options)
+        self.steps = 0
+        return self._observation(), info
+
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        _image, reward, terminated, truncated, info = super().step(action)
+        self.steps += 1
+        return self._observation(), reward, terminated, truncated, info
+
+
+BAD_OBSERVATION_ENVS = {
+    "VisualNaN-v0": {"bad": "nan"},
+    "VisualNaNLater-v0": {"bad": "nan", "bad_from": 3},
+    "VisualHuge-v0": {"bad": "huge"},
+    "VisualText-v0": {"bad": "text"},
+    "VisualGray-v0": {"bad": "gray"},
+}
+
+
 def add_dot_goals(store: Any, name: str = "dot") -> int:
     """A goal set of 4 DotReach goal images (16 px; display 32 px) in `store` (an contract.store.Store); its id."""
     from contract.envs import encode_png
@@ -81,3 +129,8 @@ def add_dot_goals(store: Any, name: str = "dot") -> int:
 
 if "DotReach-v0" not in gym.registry:
     gym.register(id="DotReach-v0", entry_point="learner.testing_envs:DotReach", max_episode_steps=50)
+for _env_id, _kwargs in BAD_OBSERVATION_ENVS.items():
+    if _env_id not in gym.registry:
+        gym.register(
+            id=_env_id, entry_point="learner.testing_envs:BadObservationDot", max_episode_steps=50, kwargs=_kwargs
+        )

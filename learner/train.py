@@ -331,7 +331,7 @@ class Trainer:
         self.counters.step += 1
         episode.length += 1
         episode.total += float(reward)
-        next_obs = model_image(raw, cfg.image_size)
+        next_obs = model_image(raw, cfg.image_size, cfg.env_id)
         success = success_of(info)
         if success is None and self.spec.needs_success:
             raise ValueError(
@@ -349,7 +349,7 @@ class Trainer:
 
     def _begin_episode(self, episode: "EnvEpisode", seed: int | None = None) -> None:
         raw, info = episode.env.reset(seed=seed)
-        episode.obs = model_image(raw, self.config.image_size)
+        episode.obs = model_image(raw, self.config.image_size, self.config.env_id)
         episode.obs_slot = self.replay.add_frame(episode.obs)
         episode.length, episode.total = 0, 0.0
         self._observe(episode.env, episode.obs, info, success_of(info))

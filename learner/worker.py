@@ -19,6 +19,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
+from contract.envs import BadObservation
 from contract.settings import Settings, get_settings
 from contract.store import NotFound, RunStatus, Store, first_line, is_transient
 from learner.patient_store import LONGEST_PAUSE_S, patient
@@ -99,7 +100,7 @@ def _train_one(store: Store, run_id: int, settings: Settings, worker: str, inter
                            first_line(error))  # fmt: skip
             _give_back(store, run_id, worker, interrupt)
             return False
-        reason = first_line(error)
+        reason = str(error) if isinstance(error, BadObservation) else first_line(error)  # "<env id>: <problem>"
         logger.exception("run %s failed: %s", run_id, reason)
         try:
             store.record_event(run_id=run_id, level="error", message="".join(traceback.format_exception(error))[-4000:])

@@ -196,8 +196,9 @@ def test_env_ids_must_be_registered_or_from_an_allowed_module(
         client.post("/api/runs", json={"env_id": "learner.testing_env:DotReach-v0", "goal_set_id": goal_set_id})
     )
     assert "'learner.testing_envs:DotReach-v0'" in errors["env_id"]
-    # registered ids and allowed modules (and their submodules) pass
-    for env_id in ["VisualDoor-v0", "CartPole-v1", "learner.testing_envs:DotReach-v0", "sim:VisualPicker-v0"]:
+    # registered image envs and allowed modules (and their submodules) pass; CartPole-v1 (no images): see
+    # tests/test_bad_observations.py
+    for env_id in ["VisualDoor-v0", "learner.testing_envs:DotReach-v0", "sim:VisualPicker-v0"]:
         _run(client, goal_set_id, env_id=env_id)
     assert "this" not in sys.modules
     # without RAQ_ENV_MODULES only registered ids (and the project's own sim) pass

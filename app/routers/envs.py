@@ -12,7 +12,15 @@ from pydantic import BaseModel
 
 from app.deps import ReadAuth, SettingsDep
 from app.schemas import errors
-from contract.envs import SIM_ENV_IDS, SIM_TASK_SETTINGS, env_id_problem, first_frames, known_env_ids
+from contract.envs import (
+    SIM_ENV_IDS,
+    SIM_TASK_SETTINGS,
+    BadObservation,
+    env_id_problem,
+    first_frames,
+    known_env_ids,
+)
+from contract.settings import Settings
 
 router = APIRouter(prefix="/api/envs", tags=["envs"], responses=errors(401))
 _preview_lock = threading.Lock()  # one env made at a time: rendering contexts are not free
@@ -69,15 +77,33 @@ def _env_error(message: str) -> HTTPException:
     return HTTPException(status_code=422, detail=[{"loc": ["query", "env_id"], "msg": message, "type": "value_error"}])
 
 
-def _checked_frames(env_id: str, size: int, settings: SettingsDep) -> tuple[bytes, bytes, str]:
+def preview_frames(env_id: str, size: int, settings: Settings) -> tuple[bytes, bytes, str] | str:
+    """The env's first frames and description (as the preview shows them), or why a run of it cannot start: an
+    id that is not allowed or registered, an env that cannot be made or reset, or an observation that is not an
+    image (contract.envs.observation_problem: "<env id>: observation has NaN values"). The New run form's preview
+    and run creation both ask this, so a run is created only of an env whose preview works."""
     problem = env_id_problem(env_id, allowed_modules=settings.env_modules)
     if problem:
-        raise _env_error(problem)
+        return problem
     try:
         return _frames(env_id, size, 256)
+    except BadObservation as error:
+        return str(error)[:500]
     except Exception as error:  # noqa: BLE001 - any failure of the env itself is the user's answer, not a 500
-        message = f"cannot make or reset {env_id!r}: {type(error).__name__}: {error}".splitlines()[0][:500]
-        raise _env_error(message) from None
+        return f"cannot make or reset {env_id!r}: {type(error).__name__}: {error}".splitlines()[0][:500]
+
+
+def preview_problem(env_id: str, size: int, settings: Settings) -> str | None:
+    """preview_frames's reason, or None when the env previews fine."""
+    frames = preview_frames(env_id, size, settings)
+    return frames if isinstance(frames, str) else None
+
+
+def _checked_frames(env_id: str, size: int, settings: Settings) -> tuple[bytes, bytes, str]:
+    frames = preview_frames(env_id, size, settings)
+    if isinstance(frames, str):
+        raise _env_error(frames)
+    return frames
 
 
 @router.get("/preview", response_model=EnvPreviewOut)

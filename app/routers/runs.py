@@ -9,6 +9,7 @@ import pydantic
 from fastapi import APIRouter, HTTPException, Query, Response, status
 
 from app.deps import ReadAuth, RunId, SettingsDep, StoreDep, WriteAuth
+from app.routers.envs import preview_problem
 from app.schemas import (
     WRITE_ERRORS,
     RunContinue,
@@ -23,7 +24,6 @@ from app.schemas import (
 from contract.algorithms import ALGORITHM_SPECS
 from contract.checkpoint_location import is_remote, run_folder
 from contract.config import TrainConfig, host_cuda_devices, host_memory_bytes
-from contract.envs import env_id_problem
 from contract.settings import Settings
 from contract.store import NotFound, Run, Store
 
@@ -92,7 +92,7 @@ def validate_run_config(body: RunCreate, settings: Settings) -> TrainConfig:
                 detail.append(_field_error(location(field), field, message or cause))
         raise HTTPException(status_code=422, detail=detail) from None
     problems = config.resource_errors(memory_bytes=host_memory_bytes(), cuda_devices=host_cuda_devices())
-    env_problem = env_id_problem(config.env_id, allowed_modules=settings.env_modules)
+    env_problem = preview_problem(config.env_id, config.image_size, settings)  # the New run form's preview
     if env_problem:
         problems.append(("env_id", env_problem))
     if problems:
