@@ -52,6 +52,21 @@ def host_cuda_devices() -> int:
     return sum(1 for path in Path("/dev").glob("nvidia*") if path.name[len("nvidia") :].isdigit())
 
 
+def cuda_devices_needed(device: str) -> int:
+    """How many CUDA GPUs a learner must have to run on `device`: 0 for "cpu", N + 1 for "cuda:N" ("cuda": 1)."""
+    if not device.startswith("cuda"):
+        return 0
+    return int(device.partition(":")[2] or 0) + 1
+
+
+def device_need(device: str) -> str | None:
+    """What a run on `device` waits for, in words ("a learner with CUDA"), or None for the CPU."""
+    needed = cuda_devices_needed(device)
+    if not needed:
+        return None
+    return "a learner with CUDA" if needed == 1 else f"a learner with at least {needed} CUDA GPUs ({device})"
+
+
 def _choice_fields() -> dict[str, tuple[Any, ...]]:
     """Fields typed as Literal[...] and their allowed values."""
     hints = get_type_hints(TrainConfig)
@@ -184,7 +199,7 @@ class ExecutionConfig:
     """How the run executes on its host: device, precision, threads, pipelines, envs. None of it changes the method."""
 
     device: str = "cpu"
-    """Torch device: "cpu", "cuda" or "cuda:N", a GPU this host has."""
+    """Torch device: "cpu", "cuda" or "cuda:N"; only a learner with that GPU takes the run."""
     precision: Literal["auto", "fp32", "bf16"] = "auto"
     """Autocast dtype of every network (SAC and f_psi); bf16 also hands them bf16 images; auto: bf16 where faster."""
     num_envs: int = 1
@@ -299,8 +314,9 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
         batches = (2 * self.batch_size + 2 * self.classifier_batch_size) * frame * 4 * 8
         return replay + candidates + negatives + batches
 
-    def resource_errors(self, *, memory_bytes: int, cuda_devices: int) -> list[tuple[str, str]]:
-        """(field, message) for what this host cannot give the run: memory, or the GPU it names."""
+    def resource_errors(self, *, memory_bytes: int) -> list[tuple[str, str]]:
+        """(field, message) when the run's own size is more than a host of `memory_bytes` allows. Which GPUs it
+        needs is the learners' business (`cuda_devices_needed`): a learner claims only runs it can execute."""
         errors: list[tuple[str, str]] = []
         budget = int(memory_bytes * MEMORY_SHARE)
         needed = self.memory_estimate()
@@ -311,11 +327,6 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
                 f"(replay {self.replay_capacity:,} x 2 frames of {self.image_size}x{self.image_size}x3, query "
                 f"candidates, batches); this host allows {budget / 2**30:,.1f} GiB ({MEMORY_SHARE:.0%} of its RAM)",
             ))  # fmt: skip
-        if self.device.startswith("cuda"):
-            index = int(self.device.partition(":")[2] or 0)
-            if index >= cuda_devices:
-                have = f"{cuda_devices} CUDA GPU" + ("" if cuda_devices == 1 else "s")
-                errors.append(("device", f"{self.device!r} is not a GPU of this host (it has {have})"))
         return errors
 
     def to_dict(self) -> dict[str, Any]:

@@ -13,6 +13,15 @@ from typing import Any
 
 from contract.store import RunStatus, Store
 
+
+def cuda_devices() -> int:
+    """The CUDA GPUs this learner can use (torch's count, under CUDA_VISIBLE_DEVICES): a learner claims only runs
+    whose device it has (Store.claim_next_run)."""
+    import torch  # noqa: PLC0415 - the learner's own dependency, not the contract's
+
+    return torch.cuda.device_count() if torch.cuda.is_available() else 0
+
+
 logger = logging.getLogger("learner.train")
 
 
@@ -73,7 +82,7 @@ class RunControl:
 
     def look_for_higher_priority(self) -> None:
         """At a checkpoint: note a higher-priority run waiting for a learner; the loop then yields to it."""
-        self.yield_to = self.store.higher_priority_waiting(run_id=self.run_id)
+        self.yield_to = self.store.higher_priority_waiting(run_id=self.run_id, cuda_devices=cuda_devices())
 
     @property
     def interrupted(self) -> bool:

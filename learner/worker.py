@@ -23,6 +23,7 @@ from contract.envs import BadObservation
 from contract.settings import Settings, get_settings
 from contract.store import NotFound, RunStatus, Store, first_line, is_transient
 from learner.patient_store import LONGEST_PAUSE_S, patient
+from learner.run_control import cuda_devices
 from learner.train import Outcome, train_run
 
 logger = logging.getLogger(__name__)
@@ -60,12 +61,15 @@ def work(
     0, or 1 when (with once=True) the run failed."""
     worker = worker_name or f"{socket.gethostname()}-{os.getpid()}"
     interrupt = interrupt or threading.Event()
+    gpus = cuda_devices()  # it claims only runs it can execute: a run on "cuda" waits for a learner with a GPU
     store = patient(Store(settings.resolved_database_url), patience=settings.database_patience_seconds)
     try:
         with _interrupt_on_signals(interrupt):
             while not interrupt.is_set():
                 try:
-                    run = store.claim_next_run(worker=worker, stale_after_seconds=settings.stale_heartbeat_seconds)
+                    run = store.claim_next_run(
+                        worker=worker, stale_after_seconds=settings.stale_heartbeat_seconds, cuda_devices=gpus
+                    )
                 except Exception as error:
                     if not is_transient(error):
                         raise

@@ -23,7 +23,7 @@ from app.schemas import (
 )
 from contract.algorithms import ALGORITHM_SPECS
 from contract.checkpoint_location import is_remote, run_folder
-from contract.config import TrainConfig, host_cuda_devices, host_memory_bytes
+from contract.config import TrainConfig, host_memory_bytes
 from contract.settings import Settings
 from contract.store import NotFound, Run, Store
 
@@ -63,7 +63,7 @@ def _field_error(location: list[str | int], field: str, message: str) -> dict[st
 
 def validate_run_config(body: RunCreate, settings: Settings) -> TrainConfig:
     """The body's settings as a TrainConfig, or HTTP 422 whose detail names every bad field: a value out of its
-    bounds, more than this host can run (memory, GPU), or an env id that is not registered or allowed."""
+    bounds, more memory than this host has, or an env id that is not registered or allowed."""
     values = dict(body.config)
     given_on_top = {name for name in TOP_LEVEL_FIELDS if getattr(body, name) is not None}
     for name in given_on_top:
@@ -91,7 +91,8 @@ def validate_run_config(body: RunCreate, settings: Settings) -> TrainConfig:
                 field, _, message = cause.partition(": ")
                 detail.append(_field_error(location(field), field, message or cause))
         raise HTTPException(status_code=422, detail=detail) from None
-    problems = config.resource_errors(memory_bytes=host_memory_bytes(), cuda_devices=host_cuda_devices())
+    # the run's own size against this host's memory; the GPU it names is for a learner to have, not this server
+    problems = config.resource_errors(memory_bytes=host_memory_bytes())
     env_problem = preview_problem(config.env_id, config.image_size, settings)  # the New run form's preview
     if env_problem:
         problems.append(("env_id", env_problem))

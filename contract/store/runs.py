@@ -9,6 +9,7 @@ from typing import Any
 
 from sqlalchemy import delete, func, or_, select, update
 
+from contract.config import cuda_devices_needed, device_need
 from contract.store.base import StoreBase, compare_and_set, found, retry_lost_races
 from contract.store.errors import Conflict, InvalidInput, NotFound
 from contract.store.models import (
@@ -26,6 +27,14 @@ from contract.store.models import (
 
 # The order learners take queued runs in: highest priority first, then the oldest.
 _CLAIM_ORDER = (Run.priority.desc(), Run.id)
+# How many claimable runs a learner looks through, in that order, for one it can execute (and is not raced to).
+_CLAIM_CANDIDATES = 50
+
+
+def _device_of(config: dict[str, Any] | None) -> str:
+    """The torch device a run's stored config names ("cpu" when it names none)."""
+    device = (config or {}).get("device", "cpu")
+    return device if isinstance(device, str) else "cpu"
 
 
 class RunStore(StoreBase):
@@ -109,15 +118,14 @@ class RunStore(StoreBase):
         runs ahead of it ("learner busy with #1; after #4"), or that no learner is running."""
         stale_before = self._db_now(minus_seconds=60)  # the database's clock, as the claim judges staleness
         with self.reading() as session:
-            queued = (
+            devices = dict(
                 session.execute(
-                    select(Run.id)
+                    select(Run.id, Run.config)
                     .where(Run.status == RunStatus.QUEUED, Run.archived.is_(False))
                     .order_by(*_CLAIM_ORDER)
-                )
-                .scalars()
-                .all()
+                ).all()
             )
+            queued = list(devices)  # in the claim order (dicts keep it)
             if not queued:
                 return {}
             busy = (
@@ -131,7 +139,12 @@ class RunStore(StoreBase):
             )
         reasons = {}
         for position, run_id in enumerate(queued):
-            if busy:
+            need = device_need(_device_of(devices.get(run_id)))
+            if need:  # learners without the GPU skip it (claim_next_run)
+                text = f"waiting for {need}: learners without one skip it"
+                if busy:
+                    text += " (busy: " + ", ".join(f"#{other}" for other in busy) + ")"
+            elif busy:
                 text = "learner busy with " + ", ".join(f"#{other}" for other in busy)
             else:
                 text = "waiting for a learner (none is running: start one with raq learn or raq up)"
@@ -141,14 +154,17 @@ class RunStore(StoreBase):
             reasons[run_id] = text
         return reasons
 
-    def higher_priority_waiting(self, *, run_id: int, waited_seconds: float = 10.0) -> Run | None:
+    def higher_priority_waiting(
+        self, *, run_id: int, waited_seconds: float = 10.0, cuda_devices: int = 0
+    ) -> Run | None:
         """A queued run of higher priority than `run_id` that has waited at least `waited_seconds` (an idle
-        learner, polling every 2 s, would have taken it by then), or None."""
+        learner, polling every 2 s, would have taken it by then) and that a learner with `cuda_devices` GPUs can
+        execute (it would not take another after yielding), or None."""
         with self.reading() as session:
             priority = session.scalar(select(Run.priority).where(Run.id == run_id))
             if priority is None:
                 return None
-            return session.scalars(
+            waiting = session.scalars(
                 select(Run)
                 .where(
                     Run.status == RunStatus.QUEUED,
@@ -157,15 +173,18 @@ class RunStore(StoreBase):
                     Run.queued_at <= utcnow() - timedelta(seconds=waited_seconds),
                 )
                 .order_by(*_CLAIM_ORDER)
-                .limit(1)
-            ).first()
+                .limit(_CLAIM_CANDIDATES)
+            ).all()
+            return next((run for run in waiting if cuda_devices_needed(_device_of(run.config)) <= cuda_devices), None)
 
     def count_runs(self) -> int:
         with self.reading() as session:
             return int(session.scalar(select(func.count()).select_from(Run)) or 0)
 
-    def claim_next_run(self, *, worker: str, stale_after_seconds: float = 60.0) -> Run | None:
-        """Atomically take the oldest queued run, or an active run whose learner stopped beating.
+    def claim_next_run(self, *, worker: str, stale_after_seconds: float = 60.0, cuda_devices: int = 0) -> Run | None:
+        """Atomically take the oldest queued run, or an active run whose learner stopped beating, of those the
+        learner can execute: a run whose device is "cuda:N" only when the learner has at least N + 1 CUDA GPUs
+        (`cuda_devices`); the others wait for such a learner (queue_report says so).
 
         Staleness is judged by the database's clock, never a host's: heartbeats and claims write the database's
         now, and a heartbeat is stale when it is older than the database's now minus `stale_after_seconds`.
@@ -178,9 +197,14 @@ class RunStore(StoreBase):
         )
         with self.writing() as session:
             candidates = session.execute(
-                select(Run.id, Run.status, Run.heartbeat_at).where(claimable).order_by(*_CLAIM_ORDER).limit(5)
+                select(Run.id, Run.status, Run.heartbeat_at, Run.config)
+                .where(claimable)
+                .order_by(*_CLAIM_ORDER)
+                .limit(_CLAIM_CANDIDATES)
             ).all()
-            for run_id, status, heartbeat_at in candidates:
+            for run_id, status, heartbeat_at, config in candidates:
+                if cuda_devices_needed(_device_of(config)) > cuda_devices:
+                    continue  # a learner with the GPU it names takes it
                 now = self._db_now()
                 claimed = session.execute(
                     update(Run)
