@@ -10,12 +10,18 @@ Observations of another size are resized to image_size. info["success"] is used 
 (evaluation success rate, sparse reward, ground truth on queries) and is optional.
 """
 
+import contextlib
 import difflib
 import importlib
 import io
+import json
 import math
+import os
+import subprocess
+import sys
 from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import gymnasium as gym
@@ -62,14 +68,48 @@ def module_allowed(module: str, allowed: Iterable[str]) -> bool:
     return any(module == name or module.startswith(name + ".") for name in (*ALWAYS_ALLOWED_MODULES, *allowed))
 
 
+_FRESH_REGISTRY = """
+import importlib, json, sys
+import gymnasium
+import contract.envs
+if sys.argv[1]:
+    importlib.import_module(sys.argv[1])
+print(json.dumps(sorted(gymnasium.registry)))
+"""
+
+
+@lru_cache(maxsize=64)
+def ids_a_learner_can_make(module: str | None = None) -> frozenset[str]:
+    """The env ids a fresh learner can make: registered in a new interpreter once it has imported what every
+    learner imports (gymnasium and the simulated tasks) and, with `module`, that module too. Asked of a new
+    interpreter, not of this process's registry, which holds whatever any module imported here registered.
+    Raises ImportError when the module cannot be imported."""
+    paths = os.pathsep.join(path for path in sys.path if path)
+    result = subprocess.run(
+        [sys.executable, "-c", _FRESH_REGISTRY, module or ""], capture_output=True, text=True, timeout=120,
+        env={**os.environ, "PYTHONPATH": paths}, check=False,
+    )  # fmt: skip
+    lines = result.stdout.strip().splitlines()
+    if result.returncode != 0 or not lines:
+        error = next((line for line in reversed(result.stderr.splitlines()) if line.strip()), "no output")
+        raise ImportError(f"importing {module or 'gymnasium'!r} failed: {error.strip()[:300]}")
+    return frozenset(json.loads(lines[-1]))
+
+
 def known_env_ids() -> list[str]:
-    """Gymnasium's registered ids plus the simulated tasks (registered when `sim` is imported)."""
-    return sorted(set(gym.registry) | set(SIM_ENV_IDS))
+    """The bare ids a fresh learner can make: gymnasium's own and the simulated tasks."""
+    return sorted(ids_a_learner_can_make(None) | set(SIM_ENV_IDS))
+
+
+def module_env_ids(module: str) -> list[str]:
+    """The ids importing `module` registers (beyond gymnasium's and the simulated tasks), as "module:EnvId"."""
+    return [f"{module}:{name}" for name in sorted(ids_a_learner_can_make(module) - ids_a_learner_can_make(None))]
 
 
 def env_id_problem(env_id: str, *, allowed_modules: Iterable[str]) -> str | None:
     """Why env_id cannot be used here (with suggestions for a near miss), or None when it can. A plain id must
-    be registered; "module:EnvId" must name an allowed module (its EnvId is checked when the learner imports it)."""
+    be one a fresh learner can make (gymnasium's own or a simulated task); "module:EnvId" must name an allowed
+    module whose import registers EnvId. Modules imported earlier in this process count for neither."""
     allowed = tuple(allowed_modules)
     if env_id.count(":") > 1:
         return f"{env_id!r}: at most one ':' (module:EnvId)"
@@ -78,7 +118,16 @@ def env_id_problem(env_id: str, *, allowed_modules: Iterable[str]) -> str | None
         if not module or not name:
             return f"{env_id!r}: write module:EnvId"
         if module_allowed(module, allowed):
-            return None
+            try:
+                registered = ids_a_learner_can_make(module)
+            except (ImportError, subprocess.SubprocessError, ValueError) as error:
+                return f"{env_id!r}: {error}"
+            if name in registered:
+                return None
+            own = sorted(registered - ids_a_learner_can_make(None))
+            close = difflib.get_close_matches(name, own, n=3, cutoff=0.6)
+            hint = f"; did you mean {' or '.join(repr(f'{module}:{m}') for m in close)}?" if close else ""
+            return f"{env_id!r}: importing {module!r} does not register {name!r}{hint}"
         listed = ", ".join(allowed) if allowed else "none"
         close = difflib.get_close_matches(module, [*ALWAYS_ALLOWED_MODULES, *allowed], n=3, cutoff=0.6)
         hint = f"; did you mean {' or '.join(repr(f'{m}:{name}') for m in close)}?" if close else ""
@@ -86,6 +135,18 @@ def env_id_problem(env_id: str, *, allowed_modules: Iterable[str]) -> str | None
     known = known_env_ids()
     if env_id in known:
         return None
+    if env_id in gym.registry:  # registered here by a module this process imported, which a learner would not
+        for module in allowed:
+            with contextlib.suppress(ImportError, subprocess.SubprocessError, ValueError):
+                if env_id in ids_a_learner_can_make(module):
+                    return (
+                        f"{env_id!r} is registered by {module!r}: name it {module}:{env_id} (a learner imports "
+                        "the module only when the id names it)"
+                    )
+        return (
+            f"{env_id!r} is registered only in this server, by a module a learner does not import; name it as "
+            "module:EnvId"
+        )
     close = difflib.get_close_matches(env_id, known, n=3, cutoff=0.6)
     hint = f"; did you mean {' or '.join(map(repr, close))}?" if close else ""
     return f"{env_id!r} is not a registered gymnasium id{hint}"

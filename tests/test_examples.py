@@ -10,6 +10,7 @@ from gymnasium.utils.env_checker import check_env
 from PIL import Image
 
 from contract.envs import env_id_problem, first_frames
+from contract.settings import get_settings
 
 EXAMPLES = ROOT / "examples"
 
@@ -17,13 +18,17 @@ EXAMPLES = ROOT / "examples"
 def test_the_example_env_is_one_a_run_can_use(monkeypatch) -> None:  # type: ignore[no-untyped-def]
     monkeypatch.syspath_prepend(str(EXAMPLES))
     monkeypatch.setenv("RAQ_ENV_MODULES", "my_robot")
-    import my_robot  # noqa: PLC0415 - importable once examples/ is on the path, as the README sets PYTHONPATH
+    get_settings.cache_clear()  # read again, as a learner started with it would (an earlier test may have read it)
+    try:
+        import my_robot  # noqa: PLC0415 - importable once examples/ is on the path, as the README sets PYTHONPATH
 
-    check_env(my_robot.Slide(), skip_render_check=True)
-    assert env_id_problem("my_robot:Slide-v0", allowed_modules=["my_robot"]) is None
-    assert env_id_problem("my_robot:Slide-v0", allowed_modules=[]) is not None
-    observation, display, _ = first_frames("my_robot:Slide-v0", image_size=48, display_size=128)
-    assert observation and display
+        check_env(my_robot.Slide(), skip_render_check=True)
+        assert env_id_problem("my_robot:Slide-v0", allowed_modules=["my_robot"]) is None
+        assert env_id_problem("my_robot:Slide-v0", allowed_modules=[]) is not None
+        observation, display, _ = first_frames("my_robot:Slide-v0", image_size=48, display_size=128)
+        assert observation and display
+    finally:
+        get_settings.cache_clear()
 
 
 def test_the_goal_script_draws_ten_photos_of_success(tmp_path: Path) -> None:

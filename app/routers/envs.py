@@ -18,7 +18,7 @@ from contract.envs import (
     BadObservation,
     env_id_problem,
     first_frames,
-    known_env_ids,
+    module_env_ids,
 )
 from contract.settings import Settings
 
@@ -34,6 +34,8 @@ class TaskSettingsOut(BaseModel):
 class EnvsOut(BaseModel):
     simulated: list[str]
     registered: list[str]
+    """The other envs a run can be made of: the allowed modules' envs whose preview works (image observations),
+    as module:EnvId. Gymnasium's own ids (no image observations) are not suggested."""
     allowed_modules: list[str]
     task_settings: dict[str, TaskSettingsOut]
     """Per simulated task: the config fields a run of it starts from (the New run form fills them in)."""
@@ -48,10 +50,10 @@ class EnvPreviewOut(BaseModel):
 
 @router.get("", response_model=EnvsOut)
 def list_envs(settings: SettingsDep, _auth: ReadAuth) -> EnvsOut:
-    """The simulated tasks with the settings a run of each starts from, every registered Gymnasium id, and
-    the modules runs may name as `module:EnvId`."""
+    """The simulated tasks with the settings a run of each starts from, the allowed modules' image envs (those
+    whose preview works, as `module:EnvId`), and the modules runs may name as `module:EnvId`."""
     return EnvsOut(
-        simulated=list(SIM_ENV_IDS), registered=known_env_ids(), allowed_modules=list(settings.env_modules),
+        simulated=list(SIM_ENV_IDS), registered=suggested_env_ids(settings), allowed_modules=list(settings.env_modules),
         task_settings=task_settings_out(),
     )  # fmt: skip
 
@@ -97,6 +99,25 @@ def preview_problem(env_id: str, size: int, settings: Settings) -> str | None:
     """preview_frames's reason, or None when the env previews fine."""
     frames = preview_frames(env_id, size, settings)
     return frames if isinstance(frames, str) else None
+
+
+@lru_cache(maxsize=8)
+def _suggested(modules: tuple[str, ...]) -> tuple[str, ...]:
+    settings = Settings(_env_file=None, env_modules=modules)  # type: ignore[call-arg]
+    found: list[str] = []
+    for module in modules:
+        try:
+            candidates = module_env_ids(module)
+        except Exception:  # noqa: BLE001 - a module that cannot be imported suggests nothing (its ids say why)
+            continue
+        found += [env_id for env_id in candidates if preview_problem(env_id, 48, settings) is None]
+    return tuple(found)
+
+
+def suggested_env_ids(settings: Settings) -> list[str]:
+    """What the New run form suggests besides the simulated tasks: every env the allowed modules register whose
+    preview works (an image observation), as module:EnvId, the one id a learner can make. Found once a process."""
+    return list(_suggested(tuple(settings.env_modules)))
 
 
 def _checked_frames(env_id: str, size: int, settings: Settings) -> tuple[bytes, bytes, str]:

@@ -23,12 +23,11 @@ from app.deps import (
     token_fingerprint,
 )
 from app.routers.compare import COMPARE_METRICS
-from app.routers.envs import task_settings_out
+from app.routers.envs import suggested_env_ids, task_settings_out
 from app.routers.runs import list_run_outs, run_detail, run_out
 from app.schemas import GoalExampleOut, GoalSetOut, row_with
 from contract.algorithms import ALGORITHM_SPECS
 from contract.config import TrainConfig, config_reference
-from contract.envs import SIM_ENV_IDS, known_env_ids
 from contract.store import INT32_MAX, NotFound, QueryStatus, RunStatus
 
 TEMPLATES_DIR = Path(__file__).resolve().parent.parent.parent / "templates"
@@ -111,7 +110,7 @@ def new_run_page(request: Request, settings: SettingsDep, store: StoreDep, goal_
         title="New run",
         tasks=tasks,
         initial_env_id=env_id,
-        env_ids=[env_id for env_id in known_env_ids() if env_id not in SIM_ENV_IDS],
+        env_ids=suggested_env_ids(settings),  # image envs of the allowed modules (the tasks come with `tasks`)
         env_modules=list(settings.env_modules),
         algorithms=[(name, spec.label) for name, spec in ALGORITHM_SPECS.items()],
         goal_sets=goal_sets,
