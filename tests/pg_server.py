@@ -55,6 +55,13 @@ class PostgresServer:
         command += ["-l", str(self.folder / "log"), *arguments]
         return subprocess.run(as_server_user(command), check=check, capture_output=True, text=True)
 
+    def stop(self) -> None:
+        """Shut the server down fast: every connection dropped, none accepted until start()."""
+        self.pg_ctl("-m", "fast", "-w", "stop")
+
+    def start(self) -> None:
+        self.pg_ctl("-w", "start")
+
     def restart(self) -> None:
         """Restart the server the way an operator or a failover does: fast shutdown, every connection dropped."""
         self.pg_ctl("-m", "fast", "-w", "restart")

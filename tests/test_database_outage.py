@@ -66,7 +66,11 @@ class Labeller(threading.Thread):
                 time.sleep(0.05)
 
 
-def run_through_blinks(database_url: str, tmp_path: Path, blink: Callable[[], None], blinks: int) -> None:
+Blink = Callable[[Callable[[], None]], None]
+"""Takes the database away, calls the probe while it is away, and brings it back."""
+
+
+def run_through_blinks(database_url: str, tmp_path: Path, blink: Blink, blinks: int) -> None:
     upgrade(database_url)
     store = Store(database_url)
     goal_set_id = add_dot_goals(store)
@@ -95,7 +99,7 @@ def run_through_blinks(database_url: str, tmp_path: Path, blink: Callable[[], No
             blinked_at: list[int] = []
             for index in range(blinks):
                 wait_until(lambda i=index: step_of(store, run.id) >= 150 + 300 * i, learner, log_path)
-                blink()
+                blink(lambda: expect_unavailable(server.url, run.id))
                 blinked_at.append(step_of(store, run.id))
             wait_until(lambda: status_of(store, run.id) not in RunStatus.ACTIVE, learner, log_path, finished=True)
             assert learner.wait(timeout=60) == 0, log_path.read_text()[-4000:]
@@ -113,9 +117,22 @@ def run_through_blinks(database_url: str, tmp_path: Path, blink: Callable[[], No
         query = store.get_query(query_id=query_id)
         assert query.status == "answered" and query.answer == answer
     assert {status for status in labeller.statuses if status >= 500} <= {503}, sorted(set(labeller.statuses))
-    assert 503 in labeller.statuses, "the server never said the database was away"
     assert all(r.status not in (*RunStatus.ACTIVE, RunStatus.FAILED) for r in store.list_runs())
     store.dispose()
+
+
+def expect_unavailable(url: str, run_id: int) -> None:
+    """While the database is away: writes are JSON 503s with Retry-After (on a full disk, once SQLite needs a new
+    page: within a few tries), and /health says so."""
+    with httpx.Client(base_url=url, timeout=30) as client:
+        deadline = time.monotonic() + 10
+        while (write := client.patch(f"/api/runs/{run_id}", json={"priority": 1})).status_code == 200:
+            assert time.monotonic() < deadline, "every write succeeded while the database was away"
+            time.sleep(0.1)
+        assert write.status_code == 503 and write.headers["retry-after"] == "5", write.text
+        assert "the database is unreachable" in write.json()["detail"]
+        health = client.get("/health")
+        assert health.status_code == 503 and health.json()["status"] == "error", health.text
 
 
 def step_of(store: Store, run_id: int) -> int:
@@ -152,7 +169,14 @@ def postgres() -> Iterator[PostgresServer]:
 
 @pytest.mark.slow
 def test_a_run_goes_on_through_three_postgresql_restarts(postgres: PostgresServer, tmp_path: Path) -> None:
-    run_through_blinks(postgres.url, tmp_path, postgres.restart, blinks=3)
+    def restart(probe: Callable[[], None]) -> None:
+        postgres.stop()
+        try:
+            probe()
+        finally:
+            postgres.start()
+
+    run_through_blinks(postgres.url, tmp_path, restart, blinks=3)
 
 
 @pytest.fixture
@@ -167,8 +191,8 @@ def small_disk(tmp_path: Path) -> Iterator[Path]:
         subprocess.run(["umount", "-l", str(mount)], check=False)
 
 
-def fill_then_empty(disk: Path, seconds: float = 4.0) -> None:
-    """Fill the disk to its last byte, keep it full for a while, then empty it."""
+def fill_then_empty(disk: Path, probe: Callable[[], None], seconds: float = 4.0) -> None:
+    """Fill the disk to its last byte, probe the server and keep it full for a while, then empty it."""
     filler = disk / "filler"
     with filler.open("wb", buffering=0) as file:
         for size in (1 << 20, 1 << 16, 1 << 12, 1 << 9):
@@ -177,12 +201,15 @@ def fill_then_empty(disk: Path, seconds: float = 4.0) -> None:
                     file.write(b"\0" * size)
             except OSError:
                 pass
-    time.sleep(seconds)
-    filler.unlink()
+    try:
+        probe()
+        time.sleep(seconds)
+    finally:
+        filler.unlink()
 
 
 @pytest.mark.slow
 def test_a_run_goes_on_while_the_sqlite_disk_fills_and_empties(small_disk: Path, tmp_path: Path) -> None:
     url = f"sqlite:///{small_disk / 'raq.sqlite3'}"
-    run_through_blinks(url, tmp_path, lambda: fill_then_empty(small_disk), blinks=2)
+    run_through_blinks(url, tmp_path, lambda probe: fill_then_empty(small_disk, probe), blinks=2)
     assert shutil.disk_usage(small_disk).free > 0

@@ -15,9 +15,11 @@ from contract.settings import get_settings
 EXAMPLES = ROOT / "examples"
 
 
-def test_the_example_env_is_one_a_run_can_use(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+def test_the_example_env_is_one_a_run_can_use(monkeypatch, request) -> None:  # type: ignore[no-untyped-def]
     monkeypatch.syspath_prepend(str(EXAMPLES))
     monkeypatch.setenv("RAQ_ENV_MODULES", "my_robot")
+    get_settings.cache_clear()  # the learner's env maker reads RAQ_ENV_MODULES through the cached settings
+    request.addfinalizer(get_settings.cache_clear)
     get_settings.cache_clear()  # read again, as a learner started with it would (an earlier test may have read it)
     try:
         import my_robot  # noqa: PLC0415 - importable once examples/ is on the path, as the README sets PYTHONPATH
