@@ -7,6 +7,13 @@ from pathlib import Path
 
 FILENAME = "checkpoint.pt"
 POLICY_FILENAME = "policy.pt"  # beside the checkpoint: the actor and its encoder only (learner/policy.py loads it)
+# Beside them, the policies the evaluations judged (the same format as policy.pt, with the evaluation's "step",
+# "success_rate" and "return" in the file): the one the latest evaluation ran, and the one of the highest success
+# rate so far (then the highest return; the return alone for an env without success). POLICIES_INDEX says which
+# step and score each holds, for the server to label them without torch.
+LAST_EVAL_POLICY_FILENAME = "policy-last-eval.pt"
+BEST_POLICY_FILENAME = "policy-best.pt"
+POLICIES_INDEX = "policies.json"  # {"last_eval": {"file", "step", "success_rate", "return"}, "best": {…}}
 
 
 def is_remote(location: Path | str) -> bool:

@@ -13,6 +13,7 @@ Everything in a checkpoint is tensors, numbers, strings, lists and dicts, so it 
 """
 
 import io
+import json
 import os
 import uuid
 from pathlib import Path
@@ -135,6 +136,35 @@ def _save_local(path: Path, state: dict[str, Any]) -> int:
     finally:
         os.close(directory)
     return path.stat().st_size
+
+
+def save_json(location: Path | str, value: Any) -> None:
+    """Write `value` as JSON to `location` (a path or fsspec URL), atomically where the file system allows."""
+    data = json.dumps(value, indent=1).encode()
+    if not is_remote(location):
+        path = _local(location)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f"{path.name}.tmp-{uuid.uuid4().hex}")
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+        return
+    import fsspec
+
+    with fsspec.open(str(location), "wb") as handle:  # object stores replace a file whole
+        handle.write(data)
+
+
+def load_json(location: Path | str) -> Any | None:
+    """The JSON at `location`, or None when there is none (or it cannot be read)."""
+    try:
+        if not is_remote(location):
+            return json.loads(_local(location).read_bytes())
+        import fsspec
+
+        with fsspec.open(str(location), "rb") as handle:
+            return json.loads(handle.read())
+    except (FileNotFoundError, ValueError):
+        return None
 
 
 def load_checkpoint(location: Path | str) -> dict[str, Any] | None:

@@ -24,8 +24,13 @@ from learner.sac import SACAgent
 class Policy:
     """The SAC actor (and its encoder) of a checkpoint, acting deterministically (the tanh of the mean) by default."""
 
-    def __init__(self, agent: SACAgent, config: TrainConfig, step: int) -> None:
+    def __init__(
+        self, agent: SACAgent, config: TrainConfig, step: int, success_rate: float | None = None,
+        evaluated_return: float | None = None,
+    ) -> None:  # fmt: skip
         self.agent, self.config, self.step = agent, config, step
+        # what its evaluation scored (policy-last-eval.pt, policy-best.pt); None for policy.pt and checkpoints
+        self.success_rate, self.evaluated_return = success_rate, evaluated_return
 
     def act(self, observation: Any, deterministic: bool = True) -> np.ndarray:
         image = model_image(observation, self.config.image_size)
@@ -48,4 +53,4 @@ def load_policy(path: str | Path, device: str = "cpu") -> Policy:
         if name in ("actor", "encoder"):
             module.load_state_dict(state["agent"][name])
     agent.actor.eval()
-    return Policy(agent, config, int(state["step"]))
+    return Policy(agent, config, int(state["step"]), state.get("success_rate"), state.get("return"))

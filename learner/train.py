@@ -32,7 +32,13 @@ import numpy as np
 import torch
 
 from contract.algorithms import ALGORITHM_SPECS
-from contract.checkpoint_location import POLICY_FILENAME, sibling
+from contract.checkpoint_location import (
+    BEST_POLICY_FILENAME,
+    LAST_EVAL_POLICY_FILENAME,
+    POLICIES_INDEX,
+    POLICY_FILENAME,
+    sibling,
+)
 from contract.config import TrainConfig
 from contract.envs import (
     check_action_space,
@@ -47,7 +53,7 @@ from contract.envs import (
 from contract.images import decoded_array, model_array
 from contract.store import Run, RunPhase, RunStatus, Store
 from learner.checkpoint import checkpoint_url as checkpoint_location
-from learner.checkpoint import load_checkpoint, save_checkpoint
+from learner.checkpoint import load_checkpoint, load_json, save_checkpoint, save_json
 from learner.env_workers import ProcessEnv, process_envs
 from learner.evaluation import Evaluator, eval_env_count
 from learner.networks import resolve_precision
@@ -538,6 +544,36 @@ class Trainer:
         if episodes is not None:
             self.evaluator.record(step, episodes)
             self.counters.evaluated_step = step
+            if episodes:
+                self._keep_evaluated_policy(step, episodes)
+
+    def _keep_evaluated_policy(self, step: int, episodes: list[Any]) -> None:
+        """The policy this evaluation ran (no update ran since its episodes), as policy-last-eval.pt, and as
+        policy-best.pt when it scored best so far (success rate, then return), each with its step and score in the
+        file and in policies.json: the export offers the policy whose score the run page showed."""
+        if not self.control.holds_run():  # taken over meanwhile: the new holder keeps its own
+            return
+        successes = [episode.success for episode in episodes]
+        score = {
+            "step": step,
+            "success_rate": float(np.mean(successes)) if all(s is not None for s in successes) else None,
+            "return": float(np.mean([episode.total for episode in episodes])),
+        }
+        state = {**self._policy_state(), **score}
+        index_location = sibling(self.checkpoint_file, POLICIES_INDEX)
+        index = load_json(index_location) or {}
+        save_checkpoint(sibling(self.checkpoint_file, LAST_EVAL_POLICY_FILENAME), state)
+        index["last_eval"] = {"file": LAST_EVAL_POLICY_FILENAME, **score}
+
+        def rank(entry: dict[str, Any]) -> tuple[float, float]:
+            rate = entry.get("success_rate")
+            return (-1.0 if rate is None else rate, entry.get("return") or 0.0)
+
+        best = index.get("best")
+        if best is None or rank(score) > rank(best):  # (an equal score keeps the earlier policy)
+            save_checkpoint(sibling(self.checkpoint_file, BEST_POLICY_FILENAME), state)
+            index["best"] = {"file": BEST_POLICY_FILENAME, **score}
+        save_json(index_location, index)
 
     def _log(self) -> None:
         now, step, counters = time.monotonic(), self.counters.step, self.counters

@@ -24,6 +24,7 @@ from app.deps import (
 )
 from app.routers.compare import COMPARE_METRICS
 from app.routers.envs import suggested_env_ids, task_settings_out
+from app.routers.exports import evaluated_policies
 from app.routers.runs import list_run_outs, run_detail, run_out
 from app.schemas import GoalExampleOut, GoalSetOut, row_with
 from contract.algorithms import ALGORITHM_SPECS
@@ -141,6 +142,7 @@ def run_page(run_id: RunId, request: Request, settings: SettingsDep, store: Stor
         title=f"Run {run.id}",
         run=run.model_dump(mode="json"),
         goal_set_name=goal_set_name,
+        policies=evaluated_policies(settings, run.id),  # the export's evaluated policies, labelled
     )
 
 
