@@ -20,17 +20,13 @@ def test_the_example_env_is_one_a_run_can_use(monkeypatch, request) -> None:  # 
     monkeypatch.setenv("RAQ_ENV_MODULES", "my_robot")
     get_settings.cache_clear()  # the learner's env maker reads RAQ_ENV_MODULES through the cached settings
     request.addfinalizer(get_settings.cache_clear)
-    get_settings.cache_clear()  # read again, as a learner started with it would (an earlier test may have read it)
-    try:
-        import my_robot  # noqa: PLC0415 - importable once examples/ is on the path, as the README sets PYTHONPATH
+    import my_robot  # noqa: PLC0415 - importable once examples/ is on the path, as the README sets PYTHONPATH
 
-        check_env(my_robot.Slide(), skip_render_check=True)
-        assert env_id_problem("my_robot:Slide-v0", allowed_modules=["my_robot"]) is None
-        assert env_id_problem("my_robot:Slide-v0", allowed_modules=[]) is not None
-        observation, display, _ = first_frames("my_robot:Slide-v0", image_size=48, display_size=128)
-        assert observation and display
-    finally:
-        get_settings.cache_clear()
+    check_env(my_robot.Slide(), skip_render_check=True)
+    assert env_id_problem("my_robot:Slide-v0", allowed_modules=["my_robot"]) is None
+    assert env_id_problem("my_robot:Slide-v0", allowed_modules=[]) is not None
+    observation, display, _ = first_frames("my_robot:Slide-v0", image_size=48, display_size=128)
+    assert observation and display
 
 
 def test_the_goal_script_draws_ten_photos_of_success(tmp_path: Path) -> None:
