@@ -5,6 +5,7 @@ The observation is an RGB image (obs_size px; 24 by default); render() draws the
 info["success"] is True when the dot is within `radius` of the target (unless report_success=False).
 """
 
+import importlib
 from typing import Any
 
 import gymnasium as gym
@@ -102,6 +103,15 @@ class BadObservationDot(DotReach):
         return self._observation(), reward, terminated, truncated, info
 
 
+class MissingDependencyDot(DotReach):
+    """DotReach that needs a module which is not installed, as Gymnasium's Pusher-v5 needs imageio: making it fails
+    with "No module named 'a_module_that_is_not_installed'". Registered as VisualNeedsMissingModule-v0."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        importlib.import_module("a_module_that_is_not_installed")
+        super().__init__(**kwargs)
+
+
 BAD_OBSERVATION_ENVS = {
     "VisualNaN-v0": {"bad": "nan"},
     "VisualNaNLater-v0": {"bad": "nan", "bad_from": 3},
@@ -129,6 +139,10 @@ def add_dot_goals(store: Any, name: str = "dot") -> int:
 
 if "DotReach-v0" not in gym.registry:
     gym.register(id="DotReach-v0", entry_point="learner.testing_envs:DotReach", max_episode_steps=50)
+if "VisualNeedsMissingModule-v0" not in gym.registry:
+    gym.register(
+        id="VisualNeedsMissingModule-v0", entry_point="learner.testing_envs:MissingDependencyDot", max_episode_steps=50
+    )
 for _env_id, _kwargs in BAD_OBSERVATION_ENVS.items():
     if _env_id not in gym.registry:
         gym.register(
