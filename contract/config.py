@@ -9,6 +9,7 @@ import math
 import os
 import re
 from dataclasses import asdict, dataclass, fields, replace
+from functools import cache
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin, get_type_hints
 
@@ -379,6 +380,7 @@ def config_part(name: str) -> str:
     return "method"
 
 
+@cache
 def field_docs() -> dict[str, str]:
     """Each TrainConfig field's one-line docstring, read from this module's source (the docstring under it)."""
     tree = ast.parse(Path(__file__).read_text())

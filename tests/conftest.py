@@ -2,7 +2,6 @@
 
 import io
 import os
-import socket
 import subprocess
 import sys
 import threading
@@ -15,7 +14,7 @@ from pathlib import Path
 import httpx
 import pytest
 from fastapi.testclient import TestClient
-from pg_server import PostgresServer
+from pg_server import PostgresServer, free_port
 from PIL import Image
 
 from app.main import create_app
@@ -157,13 +156,6 @@ def answer_at_once(
     for worker in workers:
         worker.join()
     return failures
-
-
-def free_port() -> int:
-    """A free TCP port on 127.0.0.1 for a server the tests start."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 @dataclass

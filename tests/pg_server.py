@@ -28,7 +28,8 @@ def as_server_user(command: list[str]) -> list[str]:
     return ["runuser", "-u", "postgres", "--", *command] if os.geteuid() == 0 else command
 
 
-def _free_port() -> int:
+def free_port() -> int:
+    """A free TCP port on 127.0.0.1 for a server the tests start."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
@@ -76,7 +77,7 @@ class PostgresServer:
         if os.geteuid() == 0:
             shutil.chown(folder, "postgres")
             shutil.chown(folder / "sockets", "postgres")
-        server = cls(folder, _free_port(), extra_options)
+        server = cls(folder, free_port(), extra_options)
         run = {"check": True, "capture_output": True, "text": True}
         initdb = [postgres_binary("initdb"), "-D", str(server.data), "-U", "raq", "--auth=trust"]
         subprocess.run(as_server_user(initdb), **run)
