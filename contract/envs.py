@@ -233,31 +233,27 @@ def observation_problem(observation: Any) -> str | None:
     (H x W x 3, or 3 x H x W; a fourth, alpha channel is dropped; or a dict holding one under "image" or
     "pixels"), uint8 or float in [0, 1], with no NaN or infinite values. The one check the server's env preview
     (at run creation) and the learner (on every observation it converts) make."""
+    return _checked_array(observation)[1]
+
+
+def _checked_array(observation: Any) -> tuple[np.ndarray | None, str | None]:
+    """The observation's HWC image array and None, or None and observation_problem's reason (read once)."""
     array, problem = _image_array(observation)
     if array is None or array.dtype == np.uint8:
-        return problem
-    if np.isnan(array).any():
-        return "observation has NaN values"
+        return array, problem
     if not np.isfinite(array).all():
-        return "observation has infinite values"
+        return None, "observation has NaN values" if np.isnan(array).any() else "observation has infinite values"
     low, high = float(array.min()), float(array.max())
     if low < 0.0 or high > 1.0:
-        return f"observation is float with values from {low:g} to {high:g}; a float image must be in [0, 1]"
-    return None
-
-
-def check_observation(observation: Any, env_id: str) -> None:
-    """BadObservation("<env id>: <problem>") when observation_problem finds one."""
-    problem = observation_problem(observation)
-    if problem is not None:
-        raise BadObservation(f"{env_id}: {problem}")
+        return None, f"observation is float with values from {low:g} to {high:g}; a float image must be in [0, 1]"
+    return array, None
 
 
 def as_rgb(image: Any, env_id: str = "the env") -> np.ndarray:
     """An image the env gives (observation_problem finds nothing wrong with it) -> uint8 HWC; else BadObservation."""
-    check_observation(image, env_id)
-    array, _problem = _image_array(image)
-    assert array is not None
+    array, problem = _checked_array(image)
+    if array is None:
+        raise BadObservation(f"{env_id}: {problem}")
     array = array[..., :3]
     if array.dtype != np.uint8:
         array = (array.astype(np.float32) * 255.0).round().astype(np.uint8)
