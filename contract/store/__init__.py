@@ -19,6 +19,7 @@ from contract.store.models import (
     RunStatus,
 )
 from contract.store.queries import AnsweredQuery
+from contract.store.robots import RobotStatus
 from contract.store.store import Store
 
 __all__ = [
@@ -38,6 +39,7 @@ __all__ = [
     "NotFound",
     "Query",
     "QueryStatus",
+    "RobotStatus",
     "Rollout",
     "Run",
     "RunPhase",

@@ -261,3 +261,22 @@ class LoginSession(Base):
     client: Mapped[str] = mapped_column(String(200), default="")
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     expires_at: Mapped[datetime] = mapped_column(UTCDateTime, index=True)
+
+
+class RobotControl(Base):
+    """Between a person and the actor that drives a run's robot in real time (one row per run, made on first use):
+    the person's Stop robot / Resume and Ready (the scene is reset), the actor's call for a reset, its state and its
+    newest camera frame. Times are the database's clock."""
+
+    __tablename__ = "robot_controls"
+
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), primary_key=True)
+    stop_requested: Mapped[bool] = mapped_column(Boolean, default=False, server_default=sa_false())
+    reset_needed: Mapped[bool] = mapped_column(Boolean, default=False, server_default=sa_false())
+    # how many times a person pressed Ready (the scene was reset)
+    reset_count: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    actor_state: Mapped[str | None] = mapped_column(String(100))
+    actor_seen_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    frame_png: Mapped[bytes | None] = deferred(mapped_column(LargeBinary))
+    frame_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)

@@ -9,8 +9,9 @@ from contract.store.auth import AuthStore
 from contract.store.goal_sets import GoalSetStore
 from contract.store.metrics import MetricStore
 from contract.store.queries import QueryStore
+from contract.store.robots import RobotStore
 from contract.store.runs import RunStore
 
 
-class Store(RunStore, QueryStore, GoalSetStore, MetricStore, AuthStore):
+class Store(RunStore, QueryStore, GoalSetStore, MetricStore, AuthStore, RobotStore):
     """The one API over the database for the learner, the server and the tools."""

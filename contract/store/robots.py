@@ -1,0 +1,225 @@
+"""Robots: the controls between a person and the actor that drives a run's robot in real time. One row per run
+(robot_controls, made on first use) holds the person's Stop robot / Resume and Ready (the scene is reset) and the
+actor's call for a reset, its state and its newest camera frame. The actor reports every control period
+(report_actor) and gets the controls back in the same round trip; the pages read them with robot_status and
+robot_runs. Times are the database's clock, never a host's.
+"""
+
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+from sqlalchemy import select, update
+from sqlalchemy.dialects.postgresql import insert as postgresql_insert
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
+from sqlalchemy.orm import Session
+
+from contract.store.base import StoreBase, found
+from contract.store.errors import Conflict, InvalidInput
+from contract.store.models import Event, RobotControl, Run, RunStatus
+
+ROBOT_SEEN_SECONDS = 30.0
+"""robot_runs lists the active runs whose actor reported within this many seconds."""
+ACTOR_STATE_MAX = 100
+"""The longest actor state kept (a longer one is cut to this many characters)."""
+FRAME_MAX_BYTES = 8 * 1024 * 1024
+"""The largest camera frame the store keeps (a PNG; the actor sends its newest one with each report)."""
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+@dataclass(frozen=True)
+class RobotStatus:
+    """A run's robot controls and what its actor last said."""
+
+    run_id: int
+    stop_requested: bool
+    reset_needed: bool
+    reset_count: int
+    actor_state: str | None
+    actor_seen_at: datetime | None
+    frame_at: datetime | None
+
+
+_STATUS_COLUMNS = (
+    RobotControl.run_id,
+    RobotControl.stop_requested,
+    RobotControl.reset_needed,
+    RobotControl.reset_count,
+    RobotControl.actor_state,
+    RobotControl.actor_seen_at,
+    RobotControl.frame_at,
+)
+
+
+def _status(row: Any) -> RobotStatus:
+    run_id, stop_requested, reset_needed, reset_count, actor_state, actor_seen_at, frame_at = row
+    return RobotStatus(
+        run_id=run_id, stop_requested=bool(stop_requested), reset_needed=bool(reset_needed),
+        reset_count=int(reset_count), actor_state=actor_state, actor_seen_at=actor_seen_at, frame_at=frame_at,
+    )  # fmt: skip
+
+
+def _no_controls(run_id: int) -> RobotStatus:
+    """A run whose robot nobody has touched yet: not stopped, no reset waiting, no actor seen."""
+    return RobotStatus(
+        run_id=run_id, stop_requested=False, reset_needed=False, reset_count=0, actor_state=None,
+        actor_seen_at=None, frame_at=None,
+    )  # fmt: skip
+
+
+def _checked_state(state: str) -> str:
+    if not isinstance(state, str):
+        raise InvalidInput(f"the actor's state must be text, not {type(state).__name__}")
+    if "\x00" in state or any("\ud800" <= char <= "\udfff" for char in state):
+        raise InvalidInput("the actor's state must be valid Unicode text without NUL characters or lone surrogates")
+    return state[:ACTOR_STATE_MAX]
+
+
+def _checked_frame(frame_png: bytes | None) -> bytes | None:
+    if frame_png is None:
+        return None
+    if not isinstance(frame_png, bytes | bytearray | memoryview):
+        raise InvalidInput(f"a camera frame must be PNG bytes, not {type(frame_png).__name__}")
+    frame = bytes(frame_png)
+    if not frame.startswith(PNG_SIGNATURE):
+        raise InvalidInput("a camera frame must be a PNG image (it does not start with the PNG signature)")
+    if len(frame) > FRAME_MAX_BYTES:
+        raise InvalidInput(f"a camera frame of {len(frame):,} bytes is larger than {FRAME_MAX_BYTES:,} bytes")
+    return frame
+
+
+class RobotStore(StoreBase):
+    """The robot controls of runs whose learner drives a robot in real time through an actor."""
+
+    def robot_status(self, *, run_id: int) -> RobotStatus:
+        """The run's robot controls (the defaults while nobody has touched them); NotFound for an unknown run."""
+        with self.reading() as session:
+            row = session.execute(select(*_STATUS_COLUMNS).where(RobotControl.run_id == run_id)).one_or_none()
+            if row is not None:
+                return _status(row)
+            found(session.scalar(select(Run.id).where(Run.id == run_id)), f"run {run_id}")
+            return _no_controls(run_id)
+
+    def request_robot_stop(self, *, run_id: int) -> RobotStatus:
+        """A person's Stop robot: the actor holds the arm still from its next report until Resume. Pressing it
+        again changes nothing."""
+        return self._switch_stop(run_id=run_id, stop=True)
+
+    def resume_robot(self, *, run_id: int) -> RobotStatus:
+        """A person's Resume after Stop robot: the actor may move the arm again. Without a stop it changes nothing."""
+        return self._switch_stop(run_id=run_id, stop=False)
+
+    def request_scene_reset(self, *, run_id: int) -> RobotStatus:
+        """The actor's call: a person must reset the scene now (the actor waits until scene_ready)."""
+        with self.writing() as session:
+            return self._update_or_create(session, run_id=run_id, values={"reset_needed": True})
+
+    def scene_ready(self, *, run_id: int) -> RobotStatus:
+        """A person's Ready: the scene is reset, the actor may start its episode (reset_count counts these).
+        Conflict when no reset is waiting (nothing changes then)."""
+        with self.writing() as session:
+            status = self._update(
+                session, run_id=run_id, values={"reset_needed": False, "reset_count": RobotControl.reset_count + 1},
+                condition=RobotControl.reset_needed.is_(True),
+            )  # fmt: skip
+            if status is None:
+                self._controls_row(session, run_id=run_id, create=False)  # NotFound for an unknown run
+                raise Conflict("no reset is waiting")
+            return status
+
+    def report_actor(self, *, run_id: int, state: str, frame_png: bytes | None = None) -> RobotStatus:
+        """The actor, every control period: its state (cut to ACTOR_STATE_MAX characters) and, optionally, its
+        newest camera frame (PNG). Stamps actor_seen_at (and frame_at with a frame) and returns the controls in
+        the same round trip. InvalidInput for a frame that is not a PNG (nothing is stored then)."""
+        values: dict[str, Any] = {"actor_state": _checked_state(state), "actor_seen_at": self._db_now()}
+        frame = _checked_frame(frame_png)
+        if frame is not None:
+            values.update(frame_png=frame, frame_at=self._db_now())
+        with self.writing() as session:
+            return self._update_or_create(session, run_id=run_id, values=values)
+
+    def camera_frame(self, *, run_id: int) -> tuple[bytes, datetime] | None:
+        """The newest camera frame the actor sent (PNG) and when, or None before the first; NotFound for an
+        unknown run."""
+        with self.reading() as session:
+            row = session.execute(
+                select(RobotControl.frame_png, RobotControl.frame_at).where(RobotControl.run_id == run_id)
+            ).one_or_none()
+            if row is None:
+                found(session.scalar(select(Run.id).where(Run.id == run_id)), f"run {run_id}")
+                return None
+        frame, frame_at = row
+        if frame is None or frame_at is None:
+            return None
+        return bytes(frame), frame_at
+
+    def robot_runs(self) -> list[RobotStatus]:
+        """The active runs (starting, training) whose actor reported within ROBOT_SEEN_SECONDS, by run id."""
+        with self.reading() as session:
+            rows = session.execute(
+                select(*_STATUS_COLUMNS)
+                .join(Run, Run.id == RobotControl.run_id)
+                .where(
+                    Run.status.in_(RunStatus.ACTIVE),
+                    RobotControl.actor_seen_at >= self._db_now(minus_seconds=ROBOT_SEEN_SECONDS),
+                )
+                .order_by(RobotControl.run_id)
+            ).all()
+        return [_status(row) for row in rows]
+
+    # ---------------------------------------------------------------- helpers
+    def _switch_stop(self, *, run_id: int, stop: bool) -> RobotStatus:
+        """Set stop_requested to `stop`; an event says so when it changed."""
+        with self.writing() as session:
+            status = self._update(
+                session, run_id=run_id, values={"stop_requested": stop},
+                condition=RobotControl.stop_requested.is_(not stop),
+            )  # fmt: skip
+            if status is None:  # already so, or no row yet
+                current = self._controls_row(session, run_id=run_id, create=False)
+                if current.stop_requested == stop:
+                    return current
+                status = self._update_or_create(session, run_id=run_id, values={"stop_requested": stop})
+            message = "robot stop requested: the arm holds still" if stop else "robot resumed"
+            session.add(Event(run_id=run_id, level="warning" if stop else "info", message=message))
+            return status
+
+    def _update(
+        self, session: Session, *, run_id: int, values: dict[str, Any], condition: Any = None
+    ) -> RobotStatus | None:
+        """UPDATE the run's controls row (where `condition` holds): its RobotStatus, or None when no row matched."""
+        statement = update(RobotControl).where(RobotControl.run_id == run_id)
+        if condition is not None:
+            statement = statement.where(condition)
+        row = session.execute(
+            statement.values(updated_at=self._db_now(), **values).returning(*_STATUS_COLUMNS)
+        ).one_or_none()
+        return None if row is None else _status(row)
+
+    def _update_or_create(self, session: Session, *, run_id: int, values: dict[str, Any]) -> RobotStatus:
+        """_update, the row made first when missing (NotFound for an unknown run): one statement once it exists."""
+        status = self._update(session, run_id=run_id, values=values)
+        if status is None:
+            self._controls_row(session, run_id=run_id, create=True)
+            status = self._update(session, run_id=run_id, values=values)
+            assert status is not None  # the row exists now, under this transaction
+        return status
+
+    def _controls_row(self, session: Session, *, run_id: int, create: bool) -> RobotStatus:
+        """The run's controls as stored (made with their defaults first when `create` and missing; the defaults
+        when not); NotFound for an unknown run. The run is share-locked on PostgreSQL until the commit, so that it
+        cannot be deleted between this check and the row's insert."""
+        row = session.execute(select(*_STATUS_COLUMNS).where(RobotControl.run_id == run_id)).one_or_none()
+        if row is not None:
+            return _status(row)
+        found(session.scalar(select(Run.id).where(Run.id == run_id).with_for_update(read=True)), f"run {run_id}")
+        if not create:
+            return _no_controls(run_id)
+        make = sqlite_insert if self.engine.dialect.name == "sqlite" else postgresql_insert
+        session.execute(
+            make(RobotControl)
+            .values(run_id=run_id, updated_at=self._db_now())
+            .on_conflict_do_nothing(index_elements=[RobotControl.run_id])
+        )
+        row = session.execute(select(*_STATUS_COLUMNS).where(RobotControl.run_id == run_id)).one()
+        return _status(row)

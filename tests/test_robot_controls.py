@@ -1,0 +1,166 @@
+"""A run's robot controls: a person's Stop robot / Resume and Ready, the actor's call for a scene reset, its
+reports and camera frames, in the store (a real SQLite file) and through the REST API."""
+
+import io
+from datetime import timedelta
+
+import pytest
+from alembic.autogenerate import compare_metadata
+from alembic.migration import MigrationContext
+from PIL import Image
+from sqlalchemy import select, update
+
+from contract.store import Conflict, InvalidInput, NotFound, RobotStatus, RunStatus, Store
+from contract.store.models import Base, RobotControl, utcnow
+
+
+def _png(color: tuple[int, int, int] = (40, 70, 200)) -> bytes:
+    buffer = io.BytesIO()
+    Image.new("RGB", (32, 24), color).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def _run(store: Store, *, active: bool = False) -> int:
+    run_id = store.create_run(env_id="VisualPusher-v0", algorithm="vice_raq", config={}, total_steps=1000).id
+    if active:
+        assert store.claim_next_run(worker="robot-learner").id == run_id
+        store.heartbeat(run_id=run_id, worker="robot-learner", status=RunStatus.TRAINING)
+    return run_id
+
+
+def _rows(store: Store) -> list[tuple]:
+    with store.reading() as session:
+        return [tuple(row) for row in session.execute(select(*RobotControl.__table__.columns)).all()]
+
+
+# ---------------------------------------------------------------- store
+def test_a_run_nobody_touched_has_the_defaults_and_no_row(store: Store) -> None:
+    run_id = _run(store)
+    assert store.robot_status(run_id=run_id) == RobotStatus(
+        run_id=run_id, stop_requested=False, reset_needed=False, reset_count=0, actor_state=None,
+        actor_seen_at=None, frame_at=None,
+    )  # fmt: skip
+    assert store.camera_frame(run_id=run_id) is None
+    assert store.resume_robot(run_id=run_id).stop_requested is False  # nothing to resume: nothing made
+    assert _rows(store) == []
+
+
+def test_stop_and_resume_are_idempotent_and_leave_one_event_each(store: Store) -> None:
+    run_id = _run(store)
+    assert store.request_robot_stop(run_id=run_id).stop_requested is True
+    assert store.request_robot_stop(run_id=run_id).stop_requested is True
+    assert store.robot_status(run_id=run_id).stop_requested is True
+    assert store.resume_robot(run_id=run_id).stop_requested is False
+    assert store.resume_robot(run_id=run_id).stop_requested is False
+    messages = [event.message for event in store.events(run_id=run_id)]
+    assert messages.count("robot stop requested: the arm holds still") == 1
+    assert messages.count("robot resumed") == 1
+    assert len(_rows(store)) == 1
+
+
+def test_ready_needs_a_waiting_reset_and_counts_each(store: Store) -> None:
+    run_id = _run(store)
+    with pytest.raises(Conflict, match="no reset is waiting"):
+        store.scene_ready(run_id=run_id)
+    assert _rows(store) == []  # refused: nothing made
+    for count in (1, 2):
+        waiting = store.request_scene_reset(run_id=run_id)
+        assert waiting.reset_needed is True and waiting.reset_count == count - 1
+        assert store.request_scene_reset(run_id=run_id) == waiting  # asked twice: still one reset
+        ready = store.scene_ready(run_id=run_id)
+        assert ready.reset_needed is False and ready.reset_count == count
+        before = _rows(store)
+        with pytest.raises(Conflict, match="no reset is waiting"):
+            store.scene_ready(run_id=run_id)  # pressed twice: counted once
+        assert _rows(store) == before
+
+
+def test_report_actor_stamps_the_time_keeps_the_frame_and_returns_the_controls(store: Store) -> None:
+    run_id = _run(store)
+    first = store.report_actor(run_id=run_id, state="waiting for a reset")
+    assert first.actor_state == "waiting for a reset" and first.actor_seen_at is not None and first.frame_at is None
+    assert abs((first.actor_seen_at - utcnow()).total_seconds()) < 5
+    assert store.camera_frame(run_id=run_id) is None
+    store.request_robot_stop(run_id=run_id)
+    store.request_scene_reset(run_id=run_id)
+    frame = _png()
+    reported = store.report_actor(run_id=run_id, state="holding still", frame_png=frame)
+    assert reported.stop_requested is True and reported.reset_needed is True  # the controls, same round trip
+    assert reported.frame_at is not None and reported.actor_seen_at >= first.actor_seen_at
+    assert store.camera_frame(run_id=run_id) == (frame, reported.frame_at)
+    # a report without a frame keeps the newest frame and when it came
+    later = store.report_actor(run_id=run_id, state="x" * 300)
+    assert later.actor_state == "x" * 100 and later.frame_at == reported.frame_at
+    assert store.camera_frame(run_id=run_id) == (frame, reported.frame_at)
+    newer = _png((200, 40, 40))
+    assert store.camera_frame(run_id=run_id) != newer
+    store.report_actor(run_id=run_id, state="moving", frame_png=newer)
+    assert store.camera_frame(run_id=run_id)[0] == newer
+
+
+@pytest.mark.parametrize(
+    ("state", "frame", "message"),
+    [
+        ("moving", b"GIF89a not a png", "must be a PNG image"),
+        ("moving", b"", "must be a PNG image"),
+        ("moving", "a text", "must be PNG bytes"),
+        ("bad\x00state", None, "without NUL"),
+        (7, None, "must be text"),
+    ],
+)
+def test_a_bad_report_is_refused_and_stores_nothing(store: Store, state: object, frame: object, message: str) -> None:
+    run_id = _run(store)
+    store.report_actor(run_id=run_id, state="moving", frame_png=_png())
+    before = _rows(store)
+    with pytest.raises(InvalidInput, match=message):
+        store.report_actor(run_id=run_id, state=state, frame_png=frame)  # type: ignore[arg-type]
+    assert _rows(store) == before
+
+
+def test_an_unknown_run_is_not_found_everywhere(store: Store) -> None:
+    calls = [
+        store.robot_status, store.request_robot_stop, store.resume_robot, store.request_scene_reset,
+        store.scene_ready, store.camera_frame,
+    ]  # fmt: skip
+    for call in calls:
+        with pytest.raises(NotFound, match="run 404 not found"):
+            call(run_id=404)
+    with pytest.raises(NotFound, match="run 404 not found"):
+        store.report_actor(run_id=404, state="moving", frame_png=_png())
+    assert _rows(store) == []
+
+
+def test_robot_runs_lists_active_runs_whose_actor_reported_recently(store: Store) -> None:
+    stale, live = _run(store, active=True), _run(store, active=True)
+    queued = _run(store)  # (after them: a learner would take it first)
+    assert store.robot_runs() == []
+    store.request_robot_stop(run_id=live)  # controls alone: no actor seen yet
+    assert store.robot_runs() == []
+    for run_id in (queued, stale, live):
+        store.report_actor(run_id=run_id, state="moving")
+    assert [status.run_id for status in store.robot_runs()] == [stale, live]
+    with store.writing() as session:  # the stale one's actor last reported a minute ago
+        session.execute(
+            update(RobotControl)
+            .where(RobotControl.run_id == stale)
+            .values(actor_seen_at=utcnow() - timedelta(seconds=60))
+        )
+    [status] = store.robot_runs()
+    assert status.run_id == live and status.stop_requested is True and status.actor_state == "moving"
+    store.set_run_status(run_id=live, status=RunStatus.STOPPED)
+    assert store.robot_runs() == []
+
+
+def test_deleting_a_run_deletes_its_controls(store: Store) -> None:
+    run_id = _run(store)
+    store.report_actor(run_id=run_id, state="moving", frame_png=_png())
+    store.request_stop(run_id=run_id)  # queued: stopped at once
+    store.delete_run(run_id=run_id)
+    assert _rows(store) == []
+
+
+def test_the_migrations_make_the_robot_controls_table_the_model_describes(store: Store) -> None:
+    with store.engine.connect() as connection:
+        context = MigrationContext.configure(connection, opts={"compare_type": True, "compare_server_default": True})
+        differences = [diff for diff in compare_metadata(context, Base.metadata) if "robot_controls" in repr(diff)]
+    assert differences == []
