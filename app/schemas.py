@@ -157,6 +157,58 @@ class GoalSetDetail(GoalSetOut):
     examples: list[GoalExampleOut]
 
 
+# ---------------------------------------------------------------- goals from the robot's camera
+class CameraOut(BaseModel):
+    env_id: str = Field(description="A robot env whose camera this server can show (module:EnvId).")
+    frame_url: str = Field(description="Its current frame as PNG (GET; refreshed at most every 0.2 s).")
+
+
+class CamerasOut(BaseModel):
+    cameras: list[CameraOut]
+
+
+class CaptureCreate(InputModel):
+    env_id: Text = Field(
+        min_length=1, max_length=200, examples=["robot.standin:PusherStandIn-v0"],
+        description="The robot env whose camera's current frame becomes a goal photo (one of GET /api/cameras).",
+    )  # fmt: skip
+
+
+class PhotoWarningOut(BaseModel):
+    kind: str = Field(description="aspect, size, colour or contrast.")
+    message: str = Field(description="The difference in plain words.")
+
+
+class ImageSizeOut(BaseModel):
+    width: int
+    height: int
+
+
+class CameraFrameInfo(ImageSizeOut):
+    env_id: str
+    source: str = Field(description="'camera' (read by this server) or 'run N' (the frame run N's actor published).")
+    frame_url: str
+
+
+class PhotoInfo(ImageSizeOut):
+    filename: str
+
+
+class PhotoCheckOut(BaseModel):
+    warnings: list[PhotoWarningOut] = Field(
+        description="How the photo differs from the camera's current frame; empty when they look alike or there is "
+        "no camera to compare with."
+    )
+    camera: CameraFrameInfo | None = Field(description="The frame compared with (None: the set's task has no camera).")
+    photo: PhotoInfo
+
+
+class UploadedGoalExampleOut(GoalExampleOut):
+    warnings: list[PhotoWarningOut] = Field(
+        default=[], description="How the photo differs from its set's robot camera (advisory: the photo is stored)."
+    )
+
+
 # ---------------------------------------------------------------- runs
 class RunCreate(InputModel):
     """A new run. `env_id`, `algorithm` and `seed` may be given here or inside `config`; here wins."""

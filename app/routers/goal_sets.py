@@ -1,22 +1,37 @@
-"""Goal sets and their goal photos: create, upload (one or several at once), list, images, delete."""
+"""Goal sets and their goal photos: create, upload (one or several at once), list, images, delete; goals from
+the robot's own camera (its live frame, Capture) and the check of a photo against that camera (app.camera)."""
 
+from datetime import UTC, datetime
 from pathlib import PurePosixPath, PureWindowsPath
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
+from urllib.parse import urlencode
 
 from fastapi import APIRouter, File, HTTPException, Query, Response, UploadFile, status
 
+from app.camera import CameraFrame, CameraUnavailable, camera_env_ids, cameras, env_class, has_camera, photo_differences
 from app.deps import GoalExampleId, GoalSetId, ReadAuth, SettingsDep, StoreDep, WriteAuth
 from app.schemas import (
     WRITE_ERRORS,
+    CameraFrameInfo,
+    CameraOut,
+    CamerasOut,
+    CaptureCreate,
     ErrorOut,
     GoalExampleOut,
     GoalSetCreate,
     GoalSetDetail,
     GoalSetOut,
+    PhotoCheckOut,
+    PhotoInfo,
+    PhotoWarningOut,
+    UploadedGoalExampleOut,
     errors,
     row_with,
 )
-from contract.images import ImageRejected, PreparedImage, prepare_upload
+from contract.envs import SIM_ENV_IDS, module_allowed
+from contract.images import ImageRejected, PreparedImage, decode_upload, prepare_upload
+from contract.settings import Settings
+from contract.store import GoalSet, Store
 
 router = APIRouter(tags=["goal sets"], responses=errors(401))
 
@@ -89,7 +104,7 @@ def list_goal_examples(goal_set_id: GoalSetId, store: StoreDep, _auth: ReadAuth)
 @router.post(
     "/api/goal-sets/{goal_set_id}/examples",
     status_code=status.HTTP_201_CREATED,
-    response_model=list[GoalExampleOut],
+    response_model=list[UploadedGoalExampleOut],
     responses={
         **errors(404, *WRITE_ERRORS),
         400: {"model": ErrorOut, "description": "A file is not a usable image"},
@@ -107,8 +122,10 @@ def upload_goal_examples(
     store: StoreDep,
     settings: SettingsDep,
     _auth: WriteAuth,
-) -> list[GoalExampleOut]:
-    """Every file is checked before any is stored: one bad file rejects the whole upload."""
+) -> list[UploadedGoalExampleOut]:
+    """Every file is checked before any is stored: one bad file rejects the whole upload. When the set's task is a
+    robot env with a camera, each stored photo carries `warnings`: how it differs from the camera's current frame
+    (advisory, as POST …/photo-check says; the photo is stored all the same)."""
     goal_set = store.get_goal_set(goal_set_id=goal_set_id)
     if not files:
         raise HTTPException(status_code=400, detail="no files were uploaded")
@@ -157,7 +174,13 @@ def upload_goal_examples(
         )
         for image in prepared
     ]
-    return [GoalExampleOut.model_validate(example, from_attributes=True) for example in stored]
+    frame = _set_camera_frame(goal_set, settings, store)
+    return [
+        UploadedGoalExampleOut.model_validate(
+            row_with(example, warnings=_warnings(image.original, frame, goal_set, settings)), from_attributes=True
+        )
+        for example, image in zip(stored, prepared, strict=True)
+    ]
 
 
 @router.get(
@@ -185,3 +208,176 @@ def goal_example_image(
 def delete_goal_example(example_id: GoalExampleId, store: StoreDep, _auth: WriteAuth) -> Response:
     store.delete_goal_example(example_id=example_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+# ---------------------------------------------------------------- goals from the robot's camera
+CAMERA_ERRORS: dict[int | str, dict[str, Any]] = {
+    503: {"model": ErrorOut, "description": "The robot's camera could not be opened or gave no frame"}
+}
+NO_STORE = {"Cache-Control": "no-store"}
+CameraEnvId = Annotated[
+    str, Query(min_length=1, max_length=200, description="A robot env with a camera (one of GET /api/cameras).")
+]
+
+
+def frame_url(env_id: str) -> str:
+    return "/api/cameras/frame?" + urlencode({"env_id": env_id})
+
+
+def is_camera_env(env_id: str | None, settings: Settings) -> bool:
+    """Whether env_id is one of GET /api/cameras. An allowed id whose class has no camera is answered from the
+    registry at once; the rest from the list (found once a process)."""
+    if not env_id:
+        return False
+    module = env_id.split(":", 1)[0] if ":" in env_id else None
+    if module is None and env_id not in SIM_ENV_IDS:
+        return False
+    if module is not None and not module_allowed(module, settings.env_modules):
+        return False
+    try:
+        if not has_camera(env_class(env_id)):
+            return False
+    except Exception:  # noqa: BLE001 - an id whose module does not import has no camera
+        return False
+    return env_id in camera_env_ids(settings.env_modules)
+
+
+def _not_a_camera(env_id: str, loc: list[str], settings: Settings) -> HTTPException:
+    listed = ", ".join(camera_env_ids(settings.env_modules)) or "none"
+    message = f"{env_id!r} is not a robot env with a camera here (GET /api/cameras lists: {listed})"
+    return HTTPException(status_code=422, detail=[{"loc": loc, "msg": message, "type": "value_error"}])
+
+
+def _camera_frame(env_id: str, store: Store) -> CameraFrame:
+    try:
+        return cameras.frame(env_id, store)
+    except CameraUnavailable as error:
+        raise HTTPException(status_code=503, detail=str(error)) from None
+
+
+def _set_camera_frame(goal_set: GoalSet, settings: Settings, store: Store) -> CameraFrame | None:
+    """The current frame of the set's robot camera, or None when its task has none or it cannot be read."""
+    if not is_camera_env(goal_set.env_id, settings):
+        return None
+    try:
+        return cameras.frame(goal_set.env_id or "", store)
+    except CameraUnavailable:
+        return None
+
+
+def _warnings(photo: bytes, frame: CameraFrame | None, goal_set: GoalSet, settings: Settings) -> list[PhotoWarningOut]:
+    if frame is None:
+        return []
+    image = decode_upload(photo, max_bytes=max(len(photo), 1), max_pixels=settings.max_image_pixels)
+    return [
+        PhotoWarningOut(kind=found.kind, message=found.message)
+        for found in photo_differences(image, frame.pixels, goal_set.image_size)
+    ]
+
+
+@router.get("/api/cameras", response_model=CamerasOut, tags=["cameras"])
+def list_cameras(settings: SettingsDep, _auth: ReadAuth) -> CamerasOut:
+    """The robot envs with a camera: the stand-in robot's and the allowed modules' (RAQ_ENV_MODULES) envs whose
+    class is a robot.base.RobotEnv with read_camera (told from the registry, without making the env)."""
+    return CamerasOut(
+        cameras=[
+            CameraOut(env_id=env_id, frame_url=frame_url(env_id)) for env_id in camera_env_ids(settings.env_modules)
+        ]
+    )
+
+
+@router.get(
+    "/api/cameras/frame",
+    response_class=Response,
+    tags=["cameras"],
+    responses={
+        200: {"content": {"image/png": {}}, "description": "The camera's whole frame, as the robot sees it."},
+        **CAMERA_ERRORS,
+    },
+)
+def camera_frame(env_id: CameraEnvId, settings: SettingsDep, store: StoreDep, _auth: ReadAuth) -> Response:
+    """The robot camera's current frame (read without resetting the env, at most every 0.2 s; the frame a run's
+    live actor on the same env published, when one is). X-Camera-Source: 'camera' or 'run N'."""
+    if not is_camera_env(env_id, settings):
+        raise _not_a_camera(env_id, ["query", "env_id"], settings)
+    frame = _camera_frame(env_id, store)
+    return Response(content=frame.png, media_type="image/png", headers={**NO_STORE, "X-Camera-Source": frame.source})
+
+
+@router.post(
+    "/api/goal-sets/{goal_set_id}/capture",
+    status_code=status.HTTP_201_CREATED,
+    response_model=GoalExampleOut,
+    tags=["cameras"],
+    responses={**errors(404, *WRITE_ERRORS), **CAMERA_ERRORS},
+)
+def capture_goal_example(
+    goal_set_id: GoalSetId, body: CaptureCreate, store: StoreDep, settings: SettingsDep, _auth: WriteAuth
+) -> GoalExampleOut:
+    """The robot camera's current frame becomes a goal photo (source "camera"): the whole frame is its original,
+    and its model and display copies are made as an upload's are."""
+    goal_set = store.get_goal_set(goal_set_id=goal_set_id)
+    if not is_camera_env(body.env_id, settings):
+        raise _not_a_camera(body.env_id, ["body", "env_id"], settings)
+    frame = _camera_frame(body.env_id, store)
+    moment = datetime.now(UTC).strftime("%Y%m%d-%H%M%S-%f")[:-3]
+    image = prepare_upload(
+        frame.png, filename=f"camera-{moment}.png", model_size=goal_set.image_size,
+        max_bytes=max(len(frame.png), settings.max_upload_bytes),
+        max_pixels=max(frame.width * frame.height, settings.max_image_pixels),
+    )  # fmt: skip
+    example = store.add_goal_example(
+        goal_set_id=goal_set_id, filename=image.filename, original=image.original,
+        original_media_type=image.media_type, width=image.width, height=image.height, model_png=image.model_png,
+        display_png=image.display_png, source="camera",
+    )  # fmt: skip
+    return GoalExampleOut.model_validate(example, from_attributes=True)
+
+
+@router.post(
+    "/api/goal-sets/{goal_set_id}/photo-check",
+    response_model=PhotoCheckOut,
+    tags=["cameras"],
+    responses={
+        **errors(404, *WRITE_ERRORS),
+        **CAMERA_ERRORS,
+        400: {"model": ErrorOut, "description": "The file is not a usable image"},
+    },
+)
+def check_goal_photo(
+    goal_set_id: GoalSetId,
+    file: Annotated[UploadFile, File(description="One PNG, JPEG or WebP photo, as it would be uploaded.")],
+    store: StoreDep,
+    settings: SettingsDep,
+    _auth: WriteAuth,
+    env_id: Annotated[
+        str | None,
+        Query(max_length=200, description="The robot camera to compare with; default: the set's task's."),
+    ] = None,
+) -> PhotoCheckOut:
+    """How a photo differs from the robot camera's current frame (shape, size, colours, contrast), before it is
+    uploaded. Stores nothing. No warnings and no camera when the set's task is not a robot env with a camera."""
+    goal_set = store.get_goal_set(goal_set_id=goal_set_id)
+    filename = _clean_filename(file.filename, 0)
+    data = file.file.read(settings.max_upload_bytes + 1)
+    try:
+        image = decode_upload(data, max_bytes=settings.max_upload_bytes, max_pixels=settings.max_image_pixels)
+    except ImageRejected as error:
+        raise HTTPException(status_code=error.status_code, detail=f"{filename}: {error.message}") from None
+    photo = PhotoInfo(filename=filename, width=image.width, height=image.height)
+    if env_id is not None and not is_camera_env(env_id, settings):
+        raise _not_a_camera(env_id, ["query", "env_id"], settings)
+    chosen = env_id or (goal_set.env_id if is_camera_env(goal_set.env_id, settings) else None)
+    if chosen is None:
+        return PhotoCheckOut(warnings=[], camera=None, photo=photo)
+    frame = _camera_frame(chosen, store)
+    return PhotoCheckOut(
+        warnings=[
+            PhotoWarningOut(kind=found.kind, message=found.message)
+            for found in photo_differences(image, frame.pixels, goal_set.image_size)
+        ],
+        camera=CameraFrameInfo(
+            env_id=chosen, source=frame.source, width=frame.width, height=frame.height, frame_url=frame_url(chosen)
+        ),
+        photo=photo,
+    )
