@@ -29,6 +29,7 @@ from app.routers import (
     pages,
     queries,
     reward_health,
+    robot,
     runs,
 )  # fmt: skip
 from app.schemas import errors
@@ -126,6 +127,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(goal_sets.router)
     app.include_router(metrics.router)
     app.include_router(reward_health.router)
+    app.include_router(robot.router)
     app.include_router(events.router)
     app.include_router(envs.router)
     app.include_router(config.router)

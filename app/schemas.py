@@ -7,6 +7,7 @@ from typing import Annotated, Any
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from contract.store import INT32_MAX, Run, RunPhase, RunStatus, seconds_since
+from contract.store.robots import ROBOT_LIVE_SECONDS
 
 
 def _storable_text(value: str) -> str:
@@ -462,3 +463,32 @@ class CompareGroupOut(BaseModel):
 class CompareOut(BaseModel):
     metric: str
     groups: list[CompareGroupOut]
+
+
+# ---------------------------------------------------------------- robots
+class RobotStatusOut(RowOut):  # model_validate(row_with(robot_status, run_name=run.name), from_attributes=True)
+    """A run's robot controls (a person's Stop robot / Resume and Ready) and what its actor last said."""
+
+    run_id: int
+    run_name: str
+    stop_requested: bool = Field(description="Stop robot was pressed: the actor holds the arm still until Resume.")
+    reset_needed: bool = Field(description="The actor waits for a person to reset the scene and press Ready.")
+    reset_count: int = Field(description="How many times a person pressed Ready (reset the scene).")
+    actor_state: str | None = Field(description="What the actor last said it is doing.")
+    actor_seen_at: datetime | None = Field(description="When the actor last reported (the database's clock).")
+    actor_age_seconds: float | None
+    live: bool = Field(description=f"The actor reported within the last {ROBOT_LIVE_SECONDS:g} s.")
+    frame_at: datetime | None = Field(description="When the newest camera frame came.")
+    camera_url: str | None = Field(description="The newest camera frame (PNG; the query changes with each frame).")
+
+    @classmethod
+    def derived(cls, status: Any) -> dict[str, Any]:
+        age = seconds_since(status.actor_seen_at)
+        camera_url = None
+        if status.frame_at is not None:
+            camera_url = f"/api/runs/{status.run_id}/robot/camera?v={round(status.frame_at.timestamp() * 1000)}"
+        return {
+            "actor_age_seconds": age,
+            "live": age is not None and age <= ROBOT_LIVE_SECONDS,
+            "camera_url": camera_url,
+        }

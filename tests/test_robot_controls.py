@@ -2,11 +2,13 @@
 reports and camera frames, in the store (a real SQLite file) and through the REST API."""
 
 import io
+from collections.abc import Callable
 from datetime import timedelta
 
 import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
+from fastapi.testclient import TestClient
 from PIL import Image
 from sqlalchemy import select, update
 
@@ -164,3 +166,117 @@ def test_the_migrations_make_the_robot_controls_table_the_model_describes(store:
         context = MigrationContext.configure(connection, opts={"compare_type": True, "compare_server_default": True})
         differences = [diff for diff in compare_metadata(context, Base.metadata) if "robot_controls" in repr(diff)]
     assert differences == []
+
+
+def _age_actor(store: Store, run_id: int, seconds: float) -> None:
+    """As if the run's actor last reported `seconds` ago."""
+    with store.writing() as session:
+        session.execute(
+            update(RobotControl)
+            .where(RobotControl.run_id == run_id)
+            .values(actor_seen_at=utcnow() - timedelta(seconds=seconds))
+        )
+
+
+# ---------------------------------------------------------------- REST API
+def test_the_api_stops_resumes_and_says_whether_the_actor_is_live(client: TestClient, store: Store) -> None:
+    run_id = _run(store)
+    shown = client.get(f"/api/runs/{run_id}/robot").json()
+    assert shown == {
+        "run_id": run_id, "run_name": "", "stop_requested": False, "reset_needed": False, "reset_count": 0,
+        "actor_state": None, "actor_seen_at": None, "actor_age_seconds": None, "live": False, "frame_at": None,
+        "camera_url": None,
+    }  # fmt: skip
+    for _ in range(2):
+        stopped = client.post(f"/api/runs/{run_id}/robot/stop")
+        assert stopped.status_code == 200 and stopped.json()["stop_requested"] is True
+    assert store.robot_status(run_id=run_id).stop_requested is True
+    for _ in range(2):
+        resumed = client.post(f"/api/runs/{run_id}/robot/resume")
+        assert resumed.status_code == 200 and resumed.json()["stop_requested"] is False
+    store.report_actor(run_id=run_id, state="moving")
+    live = client.get(f"/api/runs/{run_id}/robot").json()
+    assert live["live"] is True and live["actor_state"] == "moving" and 0 <= live["actor_age_seconds"] < 5
+    _age_actor(store, run_id, 6)
+    assert client.get(f"/api/runs/{run_id}/robot").json()["live"] is False
+
+
+def test_ready_is_409_without_a_waiting_reset_and_counts_after_one(client: TestClient, store: Store) -> None:
+    run_id = _run(store)
+    refused = client.post(f"/api/runs/{run_id}/robot/ready")
+    assert refused.status_code == 409 and refused.json() == {"detail": "no reset is waiting"}
+    assert _rows(store) == []
+    store.request_scene_reset(run_id=run_id)
+    assert client.get(f"/api/runs/{run_id}/robot").json()["reset_needed"] is True
+    ready = client.post(f"/api/runs/{run_id}/robot/ready")
+    assert ready.status_code == 200
+    assert (ready.json()["reset_needed"], ready.json()["reset_count"]) == (False, 1)
+    before = _rows(store)
+    assert client.post(f"/api/runs/{run_id}/robot/ready").status_code == 409
+    assert _rows(store) == before
+    assert store.robot_status(run_id=run_id).reset_count == 1
+
+
+def test_the_camera_is_404_before_a_frame_then_the_newest_png_never_cached(client: TestClient, store: Store) -> None:
+    run_id = _run(store)
+    missing = client.get(f"/api/runs/{run_id}/robot/camera")
+    assert missing.status_code == 404 and "no camera frame yet" in missing.json()["detail"]
+    assert missing.headers["cache-control"] == "no-store"
+    store.report_actor(run_id=run_id, state="moving")  # a report without a frame: still none
+    assert client.get(f"/api/runs/{run_id}/robot/camera").status_code == 404
+    frame = _png()
+    status = store.report_actor(run_id=run_id, state="moving", frame_png=frame)
+    camera = client.get(f"/api/runs/{run_id}/robot/camera")
+    assert camera.status_code == 200 and camera.content == frame
+    assert camera.headers["content-type"] == "image/png" and camera.headers["cache-control"] == "no-store"
+    shown = client.get(f"/api/runs/{run_id}/robot").json()
+    assert shown["camera_url"].startswith(f"/api/runs/{run_id}/robot/camera?v=")
+    assert client.get(shown["camera_url"]).content == frame
+    newer = _png((200, 40, 40))
+    later = store.report_actor(run_id=run_id, state="moving", frame_png=newer)
+    assert client.get(f"/api/runs/{run_id}/robot/camera").content == newer
+    if later.frame_at != status.frame_at:  # a new frame, a new URL: the page's <img> loads it
+        assert client.get(f"/api/runs/{run_id}/robot").json()["camera_url"] != shown["camera_url"]
+
+
+def test_api_robots_lists_the_active_runs_whose_actor_reported_recently(client: TestClient, store: Store) -> None:
+    stale, live = _run(store, active=True), _run(store, active=True)
+    queued = _run(store)
+    assert client.get("/api/robots").json() == []
+    for run_id in (stale, live, queued):
+        store.report_actor(run_id=run_id, state="moving", frame_png=_png())
+    store.request_scene_reset(run_id=live)
+    assert [robot["run_id"] for robot in client.get("/api/robots").json()] == [stale, live]
+    _age_actor(store, stale, 60)
+    [robot] = client.get("/api/robots").json()
+    assert robot["run_id"] == live and robot["reset_needed"] is True and robot["live"] is True
+    assert robot["camera_url"].startswith(f"/api/runs/{live}/robot/camera?v=")
+
+
+def test_an_unknown_run_is_404_and_a_bad_id_422_with_nothing_stored(client: TestClient, store: Store) -> None:
+    for method, path in [
+        ("GET", "robot"), ("POST", "robot/stop"), ("POST", "robot/resume"), ("POST", "robot/ready"),
+        ("GET", "robot/camera"),
+    ]:  # fmt: skip
+        response = client.request(method, f"/api/runs/404/{path}")
+        assert response.status_code == 404 and response.json() == {"detail": "run 404 not found"}, path
+        for bad in ("0", "abc", "2147483648", "-1"):
+            assert client.request(method, f"/api/runs/{bad}/{path}").status_code == 422, (bad, path)
+    assert _rows(store) == []
+
+
+def test_a_refused_change_stores_nothing(make_client: Callable[..., TestClient], store: Store) -> None:
+    run_id = _run(store)
+    store.request_scene_reset(run_id=run_id)
+    before = _rows(store)
+    client = make_client()
+    cross_site = {"Origin": "https://elsewhere.example"}
+    for action in ("stop", "resume", "ready"):
+        assert client.post(f"/api/runs/{run_id}/robot/{action}", headers=cross_site).status_code == 403
+    locked = make_client(api_token="robot-secret")
+    for action in ("stop", "resume", "ready"):
+        assert locked.post(f"/api/runs/{run_id}/robot/{action}").status_code == 401
+    assert locked.get(f"/api/runs/{run_id}/robot").status_code == 401
+    assert _rows(store) == before
+    allowed = locked.post(f"/api/runs/{run_id}/robot/stop", headers={"Authorization": "Bearer robot-secret"})
+    assert allowed.status_code == 200 and allowed.json()["stop_requested"] is True

@@ -1,1 +1,1 @@
-"""One router per resource: runs, goal sets, queries, metrics, events, health, and the HTML pages."""
+"""One router per resource: runs, robots, goal sets, queries, metrics, events, health, and the HTML pages."""

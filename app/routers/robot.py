@@ -1,0 +1,76 @@
+"""A run's robot: what a person does for the actor that drives it in real time (Stop robot, Resume, Ready once
+the scene is reset) and the actor's newest camera frame; GET /api/robots lists the robots at work, for the pages."""
+
+from fastapi import APIRouter, HTTPException, Response
+
+from app.deps import ReadAuth, RunId, StoreDep, WriteAuth
+from app.schemas import WRITE_ERRORS, RobotStatusOut, errors, row_with
+from contract.store import NotFound, RobotStatus, Store
+
+run_robot = APIRouter(prefix="/api/runs", tags=["robot"], responses=errors(401))
+robots = APIRouter(prefix="/api/robots", tags=["robot"], responses=errors(401))
+router = APIRouter()
+"""Both, as the app includes them."""
+
+NO_STORE = {"Cache-Control": "no-store"}
+
+
+def robot_out(store: Store, status: RobotStatus) -> RobotStatusOut:
+    name = store.get_run(run_id=status.run_id).name
+    return RobotStatusOut.model_validate(row_with(status, run_name=name), from_attributes=True)
+
+
+@run_robot.get("/{run_id}/robot", response_model=RobotStatusOut, responses=errors(404))
+def robot_status(run_id: RunId, store: StoreDep, _auth: ReadAuth) -> RobotStatusOut:
+    """The run's robot controls and what its actor last said (`live`: it reported within the last 5 s)."""
+    return robot_out(store, store.robot_status(run_id=run_id))
+
+
+@run_robot.post("/{run_id}/robot/stop", response_model=RobotStatusOut, responses=errors(404, *WRITE_ERRORS))
+def stop_robot(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RobotStatusOut:
+    """Stop robot: the actor holds the arm still from its next report (one control period) until Resume. Pressing
+    it again changes nothing."""
+    return robot_out(store, store.request_robot_stop(run_id=run_id))
+
+
+@run_robot.post("/{run_id}/robot/resume", response_model=RobotStatusOut, responses=errors(404, *WRITE_ERRORS))
+def resume_robot(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RobotStatusOut:
+    """Resume after Stop robot: the actor may move the arm again. Without a stop it changes nothing."""
+    return robot_out(store, store.resume_robot(run_id=run_id))
+
+
+@run_robot.post("/{run_id}/robot/ready", response_model=RobotStatusOut, responses=errors(404, 409, *WRITE_ERRORS))
+def scene_ready(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RobotStatusOut:
+    """Ready: the scene is reset and the actor may start its episode (409 when no reset is waiting)."""
+    return robot_out(store, store.scene_ready(run_id=run_id))
+
+
+@run_robot.get(
+    "/{run_id}/robot/camera",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}}, "description": "The actor's newest camera frame."}, **errors(404)},
+)
+def robot_camera(run_id: RunId, store: StoreDep, _auth: ReadAuth) -> Response:
+    """The actor's newest camera frame (PNG, never cached: each request gets the newest); 404 before the first."""
+    frame = store.camera_frame(run_id=run_id)
+    if frame is None:
+        raise HTTPException(status_code=404, detail=f"run {run_id} has no camera frame yet", headers=NO_STORE)
+    data, frame_at = frame
+    return Response(content=data, media_type="image/png", headers={**NO_STORE, "X-Frame-At": frame_at.isoformat()})
+
+
+@robots.get("", response_model=list[RobotStatusOut])
+def robots_at_work(store: StoreDep, _auth: ReadAuth) -> list[RobotStatusOut]:
+    """The active runs whose actor reported within the last 30 s, by run id: the queue page's reset cards and Stop
+    robot buttons."""
+    listed = []
+    for status in store.robot_runs():
+        try:
+            listed.append(robot_out(store, status))
+        except NotFound:  # deleted meanwhile
+            continue
+    return listed
+
+
+router.include_router(run_robot)
+router.include_router(robots)
