@@ -152,7 +152,7 @@ class CameraSource:
         self._idle_close_s = idle_close_s
         self._lock = threading.Lock()
         self._cameras: dict[str, _Camera] = {}
-        self._actor_checked: dict[str, tuple[float, CameraFrame | str | None]] = {}
+        self._actor_checked: dict[tuple[int, str], tuple[float, CameraFrame | str | None]] = {}
 
     def open_env_ids(self) -> list[str]:
         """The env ids whose env this server holds open now."""
@@ -164,8 +164,10 @@ class CameraSource:
         this env, else read here. Raises CameraUnavailable."""
         if store is not None:
             published = self._actor_frame(env_id, store)
-            if published is not None:
+            if published is not None:  # the actor holds the camera
                 self.release(env_id)
+                if isinstance(published, str):
+                    raise CameraUnavailable(published)
                 return published
         with self._lock:
             camera = self._cameras.get(env_id)
@@ -247,20 +249,16 @@ class CameraSource:
             if env is not None:
                 env.close()
 
-    def _actor_frame(self, env_id: str, store: Store) -> CameraFrame | None:
-        """The newest frame a live actor of a run on env_id published (looked up at most every
-        FRAME_INTERVAL_S); None when no such actor is live. CameraUnavailable when one is but has no frame yet."""
-        now = time.monotonic()
+    def _actor_frame(self, env_id: str, store: Store) -> CameraFrame | str | None:
+        """_published_frame, looked up at most every FRAME_INTERVAL_S per store and env id."""
+        now, key = time.monotonic(), (id(store), env_id)
         with self._lock:
-            checked = self._actor_checked.get(env_id)
+            checked = self._actor_checked.get(key)
         if checked is not None and now - checked[0] < FRAME_INTERVAL_S:
-            answer = checked[1]
-        else:
-            answer = _published_frame(env_id, store)
-            with self._lock:
-                self._actor_checked[env_id] = (now, answer)
-        if isinstance(answer, str):
-            raise CameraUnavailable(answer)
+            return checked[1]
+        answer = _published_frame(env_id, store)
+        with self._lock:
+            self._actor_checked[key] = (now, answer)
         return answer
 
 
