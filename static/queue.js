@@ -1,5 +1,184 @@
-// Answer queue: one query at a time; Y / N / S / U; the next one arrives by polling /api/queries/next.
+// Answer queue: one query at a time; Y / N / S / U; the next one arrives by polling /api/queries/next. Above the
+// questions, the robots at work (GET /api/robots): R presses Ready once the scene is reset, X stops every robot.
+// RobotCards is shared with the run page (run.js), which shows its run's robot the same way.
 import { api, el, fmtNumber, fmtPercent, poll, setPendingBadge, setUpNotifyButton } from "/static/app.js";
+
+const ROBOT_POLL_MS = 700; // while a robot is shown: its camera and a waiting reset within a second
+const ROBOT_IDLE_POLL_MS = 3000; // while none is
+
+/** Whether a key press belongs to a field being typed in (then the page's keys do nothing). */
+export function typing(event) {
+  if (event.ctrlKey || event.metaKey || event.altKey) return true;
+  const target = event.target;
+  return Boolean(target && (target.tagName === "INPUT" || target.tagName === "TEXTAREA" || target.tagName === "SELECT"
+    || target.isContentEditable));
+}
+
+/** One card per robot at work (a RobotStatusOut each) in `container`: the live camera, what the actor says,
+ * Stop robot / Resume, and when the actor waits for a scene reset, Ready. Cards are updated in place. */
+export class RobotCards {
+  constructor(container, { say = () => {}, onChange = () => {} } = {}) {
+    this.container = container;
+    this.say = say;
+    this.onChange = onChange;
+    this.cards = new Map(); // run id -> the card's elements
+    this.robots = [];
+    this.busy = new Set(); // run ids with a request in flight
+  }
+
+  render(robots) {
+    this.robots = robots;
+    const shown = new Set(robots.map((robot) => robot.run_id));
+    for (const [runId, card] of this.cards) {
+      if (!shown.has(runId)) {
+        card.root.remove();
+        this.cards.delete(runId);
+      }
+    }
+    // waiting resets first (R presses the first one's Ready), then by run id
+    const ordered = [...robots].sort((a, b) => Number(b.reset_needed) - Number(a.reset_needed) || a.run_id - b.run_id);
+    ordered.forEach((robot, index) => {
+      const card = this.cards.get(robot.run_id) || this.make(robot);
+      this.update(card, robot);
+      const there = this.container.children[index];
+      if (there !== card.root) this.container.insertBefore(card.root, there || null);
+    });
+    this.onChange(robots);
+  }
+
+  make(robot) {
+    const runId = robot.run_id;
+    const card = {
+      root: el("section", { class: "panel robot-card", "data-run-id": runId }),
+      camera: el("img", { class: "thumb robot-camera hidden", alt: `live camera of run #${runId}` }),
+      noCamera: el("div", { class: "robot-no-camera muted small" }, "No camera frame yet."),
+      title: el("h2", { class: "robot-title" }),
+      reset: el("p", { class: "robot-reset hidden" }, "Reset the scene, then press Ready ", el("kbd", {}, "R")),
+      stopped: el("span", { class: "status stopped robot-stopped hidden" }, "Stopped"),
+      state: el("div", { class: "robot-state small" }),
+      ready: el("button", { class: "btn primary robot-ready hidden", type: "button" }, "Ready ", el("kbd", {}, "R")),
+      stop: el("button", { class: "btn danger robot-stop", type: "button" }, "Stop robot ", el("kbd", {}, "X")),
+      resume: el("button", { class: "btn robot-resume hidden", type: "button" }, "Resume"),
+      cameraUrl: null,
+    };
+    card.camera.addEventListener("load", () => {
+      card.camera.classList.remove("hidden");
+      card.noCamera.classList.add("hidden");
+    });
+    card.camera.addEventListener("error", () => {
+      card.noCamera.textContent = "The camera frame could not be loaded.";
+      card.noCamera.classList.remove("hidden");
+    });
+    card.ready.addEventListener("click", () => this.act(runId, "ready"));
+    card.stop.addEventListener("click", () => this.act(runId, "stop"));
+    card.resume.addEventListener("click", () => this.act(runId, "resume"));
+    card.root.append(
+      el("div", { class: "robot-view" }, card.camera, card.noCamera),
+      el("div", { class: "robot-body" },
+        el("div", { class: "robot-head" }, card.title, card.stopped),
+        card.reset, card.state,
+        el("div", { class: "robot-buttons" }, card.ready, card.stop, card.resume)),
+    );
+    this.cards.set(runId, card);
+    return card;
+  }
+
+  update(card, robot) {
+    const runId = robot.run_id;
+    card.root.classList.toggle("waiting", robot.reset_needed);
+    card.root.classList.toggle("stopped", robot.stop_requested);
+    card.root.classList.toggle("silent", !robot.live);
+    card.title.replaceChildren("Robot · ", el("a", { href: `/runs/${runId}` }, `run #${runId}`),
+      robot.run_name ? ` ${robot.run_name}` : "");
+    card.reset.classList.toggle("hidden", !robot.reset_needed);
+    card.ready.classList.toggle("hidden", !robot.reset_needed);
+    card.stopped.classList.toggle("hidden", !robot.stop_requested);
+    card.stop.classList.toggle("hidden", robot.stop_requested);
+    card.resume.classList.toggle("hidden", !robot.stop_requested);
+    const busy = this.busy.has(runId);
+    for (const button of [card.ready, card.stop, card.resume]) button.disabled = busy;
+    const said = robot.actor_state ? `Actor: ${robot.actor_state}` : "Actor: –";
+    const age = robot.actor_age_seconds;
+    card.state.textContent = robot.live ? said
+      : `${said} · not reporting for ${age === null ? "a while" : Math.max(0, Math.round(age)) + " s"}`;
+    if (robot.stop_requested) card.state.textContent += " · the arm holds still until Resume";
+    if (robot.camera_url !== card.cameraUrl) {
+      card.cameraUrl = robot.camera_url;
+      if (robot.camera_url) card.camera.src = robot.camera_url;
+    }
+  }
+
+  /** The runs' Ready (R): the first card waiting for a scene reset. */
+  readyFirst() {
+    const waiting = this.robots.filter((robot) => robot.reset_needed).sort((a, b) => a.run_id - b.run_id)[0];
+    if (!waiting) {
+      this.say("info", "No robot waits for a scene reset.");
+      return;
+    }
+    this.act(waiting.run_id, "ready");
+  }
+
+  /** Stop robot (X) for every robot shown that is not stopped yet. */
+  stopAll() {
+    for (const robot of this.robots) if (!robot.stop_requested) this.act(robot.run_id, "stop");
+  }
+
+  async act(runId, action) {
+    if (this.busy.has(runId)) return;
+    this.busy.add(runId);
+    this.refreshCard(runId);
+    let robot = null;
+    try {
+      robot = await api("POST", `/api/runs/${runId}/robot/${action}`);
+      const done = {
+        ready: `Run #${runId}: Ready. The robot starts its episode.`,
+        stop: `Run #${runId}: robot stopped. It holds still until you press Resume.`,
+        resume: `Run #${runId}: robot resumed.`,
+      };
+      this.say(action === "stop" ? "warn" : "ok", done[action]);
+    } catch (error) {
+      const text = error.status === 409 ? "no reset is waiting (Ready was pressed already?)" : error.message;
+      this.say("error", `Run #${runId}: ${text}`);
+    } finally {
+      this.busy.delete(runId);
+    }
+    if (robot) this.render(this.robots.map((shown) => (shown.run_id === runId ? robot : shown)));
+    else this.refreshCard(runId);
+  }
+
+  refreshCard(runId) {
+    const card = this.cards.get(runId);
+    const shown = this.robots.find((robot) => robot.run_id === runId);
+    if (card && shown) this.update(card, shown);
+  }
+
+  /** Keys R (Ready) and X (Stop robot) while a robot is shown; true when the key was one of them. */
+  key(event) {
+    if (typing(event) || !this.robots.length) return false;
+    const key = event.key.toLowerCase();
+    if (key === "r" && !event.repeat) this.readyFirst();
+    else if (key === "x") this.stopAll();
+    else return false;
+    event.preventDefault();
+    return true;
+  }
+
+  /** Poll `load()` (a list of RobotStatusOut) and render it: fast while a robot is shown, slowly while none is;
+   * not while the tab is hidden. */
+  start(load) {
+    const tick = async () => {
+      if (!document.hidden) {
+        try {
+          this.render(await load());
+        } catch (error) {
+          console.warn(error);
+        }
+      }
+      setTimeout(tick, this.robots.length ? ROBOT_POLL_MS : ROBOT_IDLE_POLL_MS);
+    };
+    tick();
+  }
+}
 
 const queue = {
   runId: null,
@@ -147,6 +326,7 @@ async function undo() {
 
 document.addEventListener("DOMContentLoaded", () => {
   const root = document.getElementById("queue");
+  if (!root) return; // (the run page imports RobotCards from here)
   for (const id of ["query-display", "query-model"]) {
     document.getElementById(id).addEventListener("error", () => {
       if (queue.current) message("error", `The image of query #${queue.current.id} could not be loaded from the server.`);
@@ -159,10 +339,14 @@ document.addEventListener("DOMContentLoaded", () => {
   document.getElementById("answer-skip").addEventListener("click", () => act("skip"));
   document.getElementById("answer-undo").addEventListener("click", () => act("undo"));
   document.getElementById("empty-undo").addEventListener("click", () => act("undo"));
+  const robotSection = document.getElementById("robots");
+  const robots = new RobotCards(document.getElementById("robot-cards"), {
+    say: message,
+    onChange: (list) => robotSection.classList.toggle("hidden", list.length === 0),
+  });
+  robots.start(() => api("GET", "/api/robots"));
   document.addEventListener("keydown", (event) => {
-    if (event.ctrlKey || event.metaKey || event.altKey) return;
-    const target = event.target;
-    if (target && (target.tagName === "INPUT" || target.tagName === "TEXTAREA" || target.isContentEditable)) return;
+    if (typing(event) || robots.key(event)) return;
     const kind = { y: "yes", n: "no", s: "skip", u: "undo" }[event.key.toLowerCase()];
     if (!kind) return;
     event.preventDefault();

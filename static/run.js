@@ -1,8 +1,12 @@
-// Run page: status and stats (every 2 s), curves from /api/runs/{id}/metrics?since_step=, rollout, queries, events.
+// Run page: status and stats (every 2 s), curves from /api/runs/{id}/metrics?since_step=, rollout, queries, events;
+// for an active run whose actor drives a robot, the robot's card (camera, Stop robot / Resume, Ready: keys X, R).
 import {
   api, el, fmtAge, fmtDuration, fmtNumber, fmtPercent, fmtSteps, fmtTime, isActive, poll, statusPill, toast,
 } from "/static/app.js";
 import { COLORS, LineChart } from "/static/charts.js";
+import { RobotCards } from "/static/queue.js";
+
+const ROBOT_SHOWN_SECONDS = 30; // an actor that reported within this long has its card (as GET /api/robots lists)
 
 const CHARTS = [
   { id: "chart-success", title: "Evaluation success rate", percent: true, yMin: 0, yMax: 1,
@@ -115,6 +119,14 @@ function renderRun(run) {
     if (rollout.episode_return !== null) parts.push(`return ${fmtNumber(rollout.episode_return, 1)}`);
     document.getElementById("rollout-caption").textContent = parts.join(" · ");
   }
+}
+
+/** The run's robot, as a list of none or one for RobotCards: while the run is active and its actor reported lately. */
+async function loadRobot() {
+  if (!isActive(page.run)) return [];
+  const robot = await api("GET", `/api/runs/${page.run.id}/robot`);
+  const recent = robot.actor_age_seconds !== null && robot.actor_age_seconds <= ROBOT_SHOWN_SECONDS;
+  return recent ? [robot] : [];
 }
 
 async function refreshRun() {
@@ -243,6 +255,12 @@ document.addEventListener("DOMContentLoaded", () => {
   document.getElementById("run-priority").addEventListener("change", (event) =>
     changeRun({ priority: Number(event.target.value) }));
   document.getElementById("delete-run").addEventListener("click", deleteRun);
+  const robots = new RobotCards(document.getElementById("robot-cards"), {
+    say: (kind, text) => toast(text, kind === "error" ? "error" : "info", kind === "error" ? 6000 : 3500),
+    onChange: (list) => document.getElementById("robots").classList.toggle("hidden", list.length === 0),
+  });
+  robots.start(loadRobot);
+  document.addEventListener("keydown", (event) => robots.key(event));
   poll(refreshRun, 2000);
   poll(refreshMetrics, 2000);
   poll(refreshQueries, 4000);
