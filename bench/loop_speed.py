@@ -148,7 +148,7 @@ def main() -> int:
             checkpoint_file=Path(tmp) / "checkpoint.pt",
         )  # fmt: skip
         timer = PartTimer()
-        timer.wrap(trainer, "_step_envs_and_update", "acting, env steps and SAC updates")
+        timer.wrap(trainer, "_step_batch", "acting, env steps and SAC updates")
         timer.wrap(trainer, "_end_of_epoch_and_evaluation", "epoch ends and evaluations")
         timer.wrap(trainer, "_publish_classifier_epoch", "classifier epochs published")
         timer.wrap(trainer, "_observe", "query candidates")

@@ -29,7 +29,8 @@ INT_MAXIMA: dict[str, int] = {
 }  # fmt: skip
 FLOAT_MAXIMA: dict[str, float] = {
     "actor_lr": 1.0, "critic_lr": 1.0, "alpha_lr": 1.0, "classifier_lr": 1.0, "initial_alpha": 1e6,
-    "mixup_alpha": 100.0, "heartbeat_seconds": 3600.0, "no_answer_share": 1.0,
+    "mixup_alpha": 100.0, "heartbeat_seconds": 3600.0, "no_answer_share": 1.0, "control_hz": 1000.0,
+    "policy_sync_seconds": 3600.0, "watchdog_seconds": 60.0,
 }  # fmt: skip
 DEVICE_PATTERN = re.compile(r"cpu|cuda(:(1[0-5]|[0-9]))?")
 ENV_ID_PATTERN = re.compile(r"[A-Za-z0-9_.\-/]+(:[A-Za-z0-9_.\-/]+)?")
@@ -113,7 +114,7 @@ class SACConfig:
     initial_random_steps: int = 1000
     """Uniform random actions before the policy acts (and before updates start)."""
     updates_per_step: int = 1
-    """Gradient steps per environment step."""
+    """Gradient steps per environment step (with a real-time actor: at most this many; fewer when slower)."""
     n_step: int = 1
     """Steps of the return in the critic's target (DrQ-v2: 3), on the host pipeline; 1: SAC's one-step target."""
     replay_capacity: int = 200_000
@@ -219,6 +220,15 @@ class ExecutionConfig:
     a copy of f_psi, published when done (rewards lag classifier_steps env steps; R 0.91, not 0.86); False: at once."""
     heartbeat_seconds: float = 5.0
     """Seconds between heartbeats to the store (a stop request is noticed this quickly)."""
+    control_hz: float = 0.0
+    """Real time: the env steps at this rate in an actor process of its own, never waiting for the learner; 0: a
+    robot env's own rate (robot.base.RobotEnv.control_hz), any other env in lockstep with the updates."""
+    policy_sync_seconds: float = 1.0
+    """Real time: seconds between the policy weights the learner sends its actor."""
+    watchdog_seconds: float = 2.0
+    """Real time: the actor holds the arm safe when the learner or the database has been silent this long."""
+    reset_every_episode: bool = False
+    """Real time: a person resets the scene before every episode (a robot env that needs it always asks)."""
 
 
 @dataclass
@@ -270,8 +280,11 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
         for name, ceiling in FLOAT_MAXIMA.items():
             if getattr(self, name) > ceiling:
                 errors.append((name, f"must be at most {ceiling:g}"))
-        if not self.heartbeat_seconds > 0:
-            errors.append(("heartbeat_seconds", "must be positive"))
+        for name in ("heartbeat_seconds", "policy_sync_seconds", "watchdog_seconds"):
+            if not getattr(self, name) > 0:
+                errors.append((name, "must be positive"))
+        if self.control_hz < 0:
+            errors.append(("control_hz", "must not be negative"))
         if not 0 <= self.seed <= SEED_MAX:
             errors.append(("seed", f"must be between 0 and {SEED_MAX}"))
         if self.target_entropy is not None and abs(self.target_entropy) > 1e6:

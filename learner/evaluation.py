@@ -52,7 +52,7 @@ class Evaluator:
     ) -> None:  # fmt: skip
         self.config, self.envs, self.agent, self.reward_model = config, envs, agent, reward_model
         self.store, self.run_id, self.control = store, run_id, control
-        self.action_space = check_action_space(envs[0])
+        self.action_space = check_action_space(envs[0]) if envs else None  # (none: eval_episodes is 0)
 
     def evaluate(self, step: int) -> bool:
         """Evaluate at env step `step` and record it; False when an interrupt cut it short (nothing recorded)."""
@@ -67,7 +67,7 @@ class Evaluator:
         the policy only (f_psi is read by `record`, so it may train meanwhile on another thread)."""
         cfg = self.config
         episodes: list[Episode] = []
-        for first in range(0, cfg.eval_episodes, len(self.envs)):
+        for first in range(0, cfg.eval_episodes, max(1, len(self.envs))):
             count = min(len(self.envs), cfg.eval_episodes - first)
             episodes += self._episodes(step, first, count)
             if self.control.interrupted:

@@ -20,10 +20,11 @@ outcome of the step. Episodes end on the time limit only (no terminal on success
 import contextlib
 import functools
 import json
+import math
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,7 @@ from contract.checkpoint_location import (
 from contract.config import TrainConfig
 from contract.envs import (
     check_action_space,
+    control_rate,
     display_image,
     display_of_snapshot,
     make_env,
@@ -52,6 +54,7 @@ from contract.envs import (
 )
 from contract.images import decoded_array, model_array
 from contract.store import Run, RunPhase, RunStatus, Store
+from learner.actor import ActorProcess, ActorSettings
 from learner.checkpoint import checkpoint_url as checkpoint_location
 from learner.checkpoint import load_checkpoint, load_json, save_checkpoint, save_json
 from learner.env_workers import ProcessEnv, process_envs
@@ -66,6 +69,10 @@ from learner.updates import ClassifierEpoch, HostUpdates, make_updates
 
 __all__ = ["Outcome", "Trainer", "config_for_run", "train_run"]
 CHECKPOINT_VERSION = 1
+REAL_TIME_SLICE = 0.5
+"""Real time: seconds the loop waits for the actor's next step before it looks at its controls again."""
+ACTOR_POLL_SECONDS = 0.02
+"""Real time: how long one wait for the actor's next message lasts once the updates are as many as allowed."""
 
 
 def config_for_run(run: Run) -> TrainConfig:
@@ -106,7 +113,17 @@ class Trainer:
         torch.manual_seed(config.seed)
         self.rng = np.random.default_rng(config.seed)
         size = config.image_size
-        if config.env_processes:
+        # how the loop executes is chosen here, once: a real-time actor, or envs stepped in lockstep with updates
+        control_hz = control_rate(config.env_id, config.control_hz)
+        self.actor: ActorProcess | None = None
+        if control_hz:
+            settings = ActorSettings(
+                config.to_dict(), run_id=run_id, database_url=store.url, control_hz=control_hz,
+                person_reset=config.reset_every_episode,
+            )  # fmt: skip
+            self.actor = ActorProcess(settings)
+            envs: list[Any] = [self.actor]
+        elif config.env_processes:
             envs = process_envs(config.num_envs, config.env_id, image_size=size, display_size=config.display_size)
         else:
             envs = [make_env(config.env_id, image_size=size, display_size=config.display_size)
@@ -115,7 +132,7 @@ class Trainer:
         self.env = self.episodes[0].env
         self.eval_envs = [  # their renders are the rollout's frames only: drawn at that size (2 ms, not 5)
             make_env(config.env_id, image_size=size, display_size=config.rollout_size)
-            for _ in range(eval_env_count(config))
+            for _ in range(eval_env_count(config) if self.actor is None else 0)  # (a robot is not opened twice)
         ]
         self.action_space = check_action_space(self.env)
         self.action_dim = int(self.action_space.shape[0])
@@ -131,15 +148,20 @@ class Trainer:
         self.updates = make_updates(
             config, agent=self.agent, replay=self.replay, reward_model=self.reward_model, spec=self.spec, rng=self.rng
         )  # fmt: skip
+        evaluation = config if self.actor is None else replace(config, eval_episodes=0)
         self.evaluator = Evaluator(
-            config, envs=self.eval_envs, agent=self.agent, reward_model=self.reward_model, store=store, run_id=run_id,
-            control=self.control,
+            evaluation, envs=self.eval_envs, agent=self.agent, reward_model=self.reward_model, store=store,
+            run_id=run_id, control=self.control,
         )  # fmt: skip
         self.update_thread = (
             ThreadPoolExecutor(max_workers=1, thread_name_prefix="sac-updates")
-            if uses_update_thread(config, self.agent.device)
+            if uses_update_thread(config, self.agent.device) and self.actor is None
             else None
         )
+        self._step_batch = self._step_envs_and_update if self.actor is None else self._real_time_steps
+        self._begin = self._begin_episode if self.actor is None else self._await_actor_episode
+        self.actor_periods: list[float] = []
+        self.policy_sent_at = -math.inf
         # with the update thread, on the host pipeline, f_psi's epochs run beside the SAC updates (one step per env
         # step) or, by default, on the update thread while the loop's thread evaluates
         host_threads = self.update_thread is not None and isinstance(self.updates, HostUpdates)
@@ -161,8 +183,10 @@ class Trainer:
         resumed = self._set_up()
         if resumed is None:
             return self._stop_or_lost()
+        if self.actor is not None:
+            self.actor.start(counters.step)
         for index, episode in enumerate(self.episodes):
-            self._begin_episode(episode, seed=None if resumed else env_seed(cfg.seed, index))
+            self._begin(episode, seed=None if resumed else env_seed(cfg.seed, index))
         if resumed:
             self._redo_interrupted_work()
         self.control.set_phase(self._loop_phase())
@@ -174,8 +198,7 @@ class Trainer:
             if outcome is not None:
                 return outcome
             episodes = self.episodes[: self._envs_this_batch()]
-            actions, outcomes = self._step_envs_and_update(episodes)
-            for episode, action, env_outcome in zip(episodes, actions, outcomes, strict=True):
+            for episode, action, env_outcome in self._step_batch(episodes):
                 self._record_step(episode, action, env_outcome)
                 self._after_step()
         return self._finish()
@@ -186,7 +209,7 @@ class Trainer:
         cfg, step = self.config, self.counters.step
         return min(len(self.episodes), cfg.total_steps - step, cfg.checkpoint_every - step % cfg.checkpoint_every)
 
-    def _step_envs_and_update(self, episodes: "list[EnvEpisode]") -> tuple[np.ndarray, list[tuple]]:
+    def _step_envs_and_update(self, episodes: "list[EnvEpisode]") -> list[tuple["EnvEpisode", np.ndarray, tuple]]:
         """The envs' actions and steps (physics and render in one burst: on a GPU not between the update graphs)
         and the SAC updates due for these steps: on the update thread while the loop's thread acts, steps the envs
         and scores waiting query candidates (MuJoCo leaves the GIL, so a second core does that), else right after
@@ -215,7 +238,56 @@ class Trainer:
                 pending.result()  # (an update's error is raised here)
         if pending is None and count:
             self._sac_updates(count)
-        return actions, outcomes
+        return list(zip(episodes, actions, outcomes, strict=True))
+
+    # ------------------------------------------------------------------ real time
+    def _await_actor_episode(self, episode: "EnvEpisode", seed: int | None = None) -> None:
+        """Real time: the actor resets the scene itself (a person first, when needed); its first observation is
+        the next message `_real_time_steps` takes."""
+        episode.length = -1  # (no episode until that message)
+
+    def _real_time_steps(self, episodes: "list[EnvEpisode]") -> list[tuple["EnvEpisode", np.ndarray, tuple]]:
+        """Real time: the actor's next step, SAC updates meanwhile (at most updates_per_step for each step taken;
+        the policy sent every policy_sync_seconds). An episode's first observation is taken on the way. Nothing
+        after REAL_TIME_SLICE seconds without a step (a person resetting, a stopped robot), so that the loop sees
+        its stop and interrupt meanwhile."""
+        assert self.actor is not None
+        episode, cfg, counters = episodes[0], self.config, self.counters
+        deadline = time.monotonic() + REAL_TIME_SLICE
+        while True:
+            self._send_policy()
+            due = max(0, counters.step - cfg.initial_random_steps + 1) * cfg.updates_per_step
+            updating = counters.total_updates < due
+            if updating:
+                self._sac_updates(1)
+            message = self.actor.next_message(0.0 if updating else ACTOR_POLL_SECONDS)
+            if message is None:
+                if time.monotonic() >= deadline:
+                    self.control.tick()
+                    return []
+            elif message.kind == "reset":
+                self._start_episode(episode, message.observation, message.info)
+            elif message.kind == "state":
+                self.control.event(f"robot: {message.state}")
+            elif episode.length >= 0:  # a step of the episode under way
+                if message.period is not None:
+                    self.actor_periods.append(message.period)
+                outcome = (message.observation, message.reward, message.terminated, message.truncated, message.info)
+                return [(episode, np.asarray(message.action, dtype=np.float32), outcome)]
+
+    def _send_policy(self) -> None:
+        """Real time: pi's weights to the actor, every policy_sync_seconds once the warm-up is over."""
+        now = time.monotonic()
+        if (
+            self.counters.step < self.config.initial_random_steps
+            or now - self.policy_sent_at < self.config.policy_sync_seconds
+        ):
+            return
+        assert self.actor is not None
+        modules = self._policy_state()["agent"]
+        self.actor.send_policy({name: {key: value.detach().cpu() for key, value in state.items()}
+                                for name, state in modules.items()})  # fmt: skip
+        self.policy_sent_at = now
 
     def _updates_due(self, steps: int) -> int:
         """SAC updates of the next `steps` env steps: updates_per_step for each step from the warm-up's end."""
@@ -297,9 +369,11 @@ class Trainer:
             self._evaluate()
 
     def close(self) -> None:
+        if self.actor is not None:
+            self.actor.close()
         if self.update_thread is not None:
             self.update_thread.shutdown()
-        for env in (*(episode.env for episode in self.episodes), *self.eval_envs):
+        for env in (*(episode.env for episode in self.episodes if episode.env is not self.actor), *self.eval_envs):
             with contextlib.suppress(Exception):  # closing must not hide the error that ended training
                 env.close()
 
@@ -349,12 +423,16 @@ class Trainer:
         if terminated or truncated or episode.length >= cfg.episode_steps:
             self.finished_returns.append(episode.total)
             self.finished_successes.append(success)
-            self._begin_episode(episode)
+            self._begin(episode)
         else:
             episode.obs, episode.obs_slot = next_obs, next_slot
 
     def _begin_episode(self, episode: "EnvEpisode", seed: int | None = None) -> None:
         raw, info = episode.env.reset(seed=seed)
+        self._start_episode(episode, raw, info)
+
+    def _start_episode(self, episode: "EnvEpisode", raw: Any, info: dict[str, Any]) -> None:
+        """An episode begins at the observation `raw` of a reset."""
         episode.obs = model_image(raw, self.config.image_size, self.config.env_id)
         episode.obs_slot = self.replay.add_frame(episode.obs)
         episode.length, episode.total = 0, 0.0
@@ -546,6 +624,8 @@ class Trainer:
             self.counters.evaluated_step = step
             if episodes:
                 self._keep_evaluated_policy(step, episodes)
+            elif self.actor is not None:  # real time: pi as it is at each evaluation step, to evaluate elsewhere
+                save_checkpoint(sibling(self.checkpoint_file, POLICY_FILENAME), self._policy_state())
 
     def _keep_evaluated_policy(self, step: int, episodes: list[Any]) -> None:
         """The policy this evaluation ran (no update ran since its episodes), as policy-last-eval.pt, and as
@@ -588,6 +668,12 @@ class Trainer:
                 values["train/episode_success"] = float(np.mean(self.finished_successes))
         if self.queries is not None:
             values.update(self.queries.counts())
+        if self.actor_periods:  # real time: the actor's control period, as it kept it
+            periods = np.asarray(self.actor_periods) * 1000.0
+            values["actor/period_ms_mean"] = float(periods.mean())
+            values["actor/period_ms_p99"] = float(np.percentile(periods, 99))
+            values["actor/period_ms_max"] = float(periods.max())
+            self.actor_periods.clear()
         values["perf/steps_per_second"] = steps_per_second
         values["perf/updates_per_second"] = (counters.total_updates - self.log_updates) / elapsed
         remaining = self.config.total_steps - step

@@ -618,13 +618,13 @@ def test_the_updates_run_on_the_update_thread_while_the_loop_acts_steps_and_scor
         sac_updates(count)
 
     trainer._sac_updates = updates
-    step_envs_and_update = trainer._step_envs_and_update
+    step_batch = trainer._step_batch
 
     def batch(episodes):  # (each batch starts with the loop's thread not yet at the scoring)
         reached.clear()
-        return step_envs_and_update(episodes)
+        return step_batch(episodes)
 
-    trainer._step_envs_and_update = batch
+    trainer._step_batch = batch
     try:
         assert trainer.train() == Outcome.FINISHED
     finally:

@@ -1,0 +1,424 @@
+"""The real-time actor: a robot env stepped at its own control rate in a process of its own, never waiting for
+the learner.
+
+The learner starts the actor (`ActorProcess`), sends it fresh policy weights every `policy_sync_seconds` and a
+keep-alive four times a second, and reads the actor's transitions as they come. The actor's loop, once per
+control period (1 / control_hz seconds): act (uniformly at random until the warm-up's end or the first weights,
+then the policy, sampling), step the env, send the transition, and sleep to the next period. Between episodes
+it asks a person to reset the scene when the env says it needs one (`needs_person_reset`) or the run says so
+(`reset_every_episode`), and waits for their Ready, publishing the camera's view meanwhile.
+
+What the actor shares with the person goes through the store (`Store.report_actor`, read by the queue and run
+pages): the camera's newest frame, its state, and the controls it obeys (Stop robot, Resume, Ready). A thread of
+its own reads the controls every CONTROL_POLL_SECONDS, so a stop is honoured within one control period.
+
+The watchdog: the arm is held safe (`env.stop()`) as soon as the learner's pipe closes (the learner died), its
+keep-alives have been silent `watchdog_seconds`, or the store has been unreachable that long. Without a learner
+the actor exits; after a database outage it stays stopped until a person presses Resume.
+"""
+
+import contextlib
+import multiprocessing
+import queue
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+
+from contract.config import TrainConfig
+from contract.envs import display_image, encode_png, make_env, model_image, scale_action
+from contract.store import Store
+from learner.sac import SACAgent
+
+CONTROL_POLL_SECONDS = 0.05
+"""How often the actor's control thread reads Stop, Resume and Ready from the store."""
+FRAME_SECONDS = 0.5
+"""How often the actor publishes the camera's newest frame for the live view."""
+KEEPALIVE_SECONDS = 0.25
+"""How often the learner tells the actor it is alive (from a thread of its own: long updates do not delay it)."""
+START_SECONDS = 120.0
+"""How long the actor may take to import its modules and make (connect to) its env."""
+
+
+class ActorState:
+    """What the actor is doing, as the pages show it."""
+
+    STARTING = "starting"
+    ACTING = "acting"
+    WAITING_FOR_RESET = "waiting for reset"
+    STOPPED = "stopped"
+    LEARNER_GONE = "held safe: learner gone"
+    DATABASE_GONE = "held safe: database unreachable"
+    CLOSED = "closed"
+
+
+EXIT_REASONS = (ActorState.LEARNER_GONE, ActorState.CLOSED)
+"""Why the actor exits: there is no learner to act for."""
+
+
+@dataclass
+class ActorSettings:
+    """What the actor process is started with."""
+
+    config: dict[str, Any]
+    """The run's TrainConfig as a dict (its networks, seed, warm-up, sizes)."""
+    run_id: int
+    database_url: str
+    control_hz: float
+    person_reset: bool
+    """Ask a person to reset the scene before every episode."""
+
+
+@dataclass
+class Controls:
+    """The person's controls as the control thread last read them, and how the store answered."""
+
+    stop_requested: bool = False
+    reset_count: int = 0
+    """How many times a person pressed Ready."""
+    last_answer: float = field(default_factory=time.monotonic)
+    """When the store last answered (monotonic)."""
+
+
+# ====================================================================== the actor process
+class _Actor:
+    """The actor's state in its process."""
+
+    def __init__(self, settings: ActorSettings, connection: Connection, outbox: Any) -> None:
+        torch.set_num_threads(1)
+        self.settings, self.connection, self.outbox = settings, connection, outbox
+        self.config = TrainConfig.from_dict({**settings.config, "device": "cpu", "precision": "fp32"})
+        cfg = self.config
+        self.env: gymnasium.Env = make_env(cfg.env_id, image_size=cfg.image_size, display_size=cfg.display_size)
+        self.action_space = self.env.action_space
+        self.agent = SACAgent(cfg, int(self.action_space.shape[0]))
+        self.generator = torch.Generator().manual_seed(cfg.seed)
+        self.rng = np.random.default_rng([cfg.seed, 1])
+        self.store = Store(settings.database_url)
+        self.period = 1.0 / settings.control_hz
+        self.step = 0  # (the learner's "start" says where the run is)
+        self.has_policy = False
+        self.last_keepalive = time.monotonic()
+        self.controls = Controls()
+        self.wake = threading.Event()  # set by the control thread when a stop comes in
+        self.state = ActorState.STARTING
+        self.frame: np.ndarray | None = None
+        self.started = False  # the learner sent the step its run is at
+        self.done = threading.Event()
+        self.control_thread = threading.Thread(target=self._control_loop, name="actor-controls", daemon=True)
+
+    # ------------------------------------------------------------------ the control thread
+    def _control_loop(self) -> None:
+        """Read the controls; publish the state and, every FRAME_SECONDS, the newest camera frame."""
+        last_frame = 0.0
+        while not self.done.is_set():
+            now = time.monotonic()
+            png = None
+            if self.frame is not None and now - last_frame >= FRAME_SECONDS:
+                png, last_frame = encode_png(self.frame), now
+            try:
+                status = self.store.report_actor(run_id=self.settings.run_id, state=self.state, frame_png=png)
+            except Exception:  # the store is unreachable: the watchdog counts from the last answer
+                pass
+            else:
+                controls = self.controls
+                controls.stop_requested, controls.reset_count = status.stop_requested, status.reset_count
+                controls.last_answer = time.monotonic()
+                if status.stop_requested:
+                    self.wake.set()
+            self.done.wait(CONTROL_POLL_SECONDS)
+
+    # ------------------------------------------------------------------ the watchdog
+    def _watchdog(self) -> str | None:
+        """Why the arm must be held safe now, or None."""
+        while self.connection.poll():
+            try:
+                message = self.connection.recv()
+            except (EOFError, OSError):
+                return ActorState.LEARNER_GONE
+            kind = message[0]
+            if kind == "policy":
+                self._load_policy(message[1])
+            elif kind == "start":
+                self.step, self.started = int(message[1]), True
+            elif kind == "close":
+                return ActorState.CLOSED
+            self.last_keepalive = time.monotonic()
+        now, limit = time.monotonic(), float(self.config.watchdog_seconds)
+        if now - self.last_keepalive > limit:
+            return ActorState.LEARNER_GONE
+        if now - self.controls.last_answer > limit:
+            return ActorState.DATABASE_GONE
+        return None
+
+    def _load_policy(self, modules: dict[str, dict[str, Any]]) -> None:
+        for name, module in self.agent.modules().items():
+            if name in modules:
+                module.load_state_dict(modules[name])
+        self.has_policy = True
+
+    # ------------------------------------------------------------------ the loop
+    def run(self) -> None:
+        self.control_thread.start()
+        self.outbox.put(("ready", self.action_space, self.env.observation_space))
+        try:
+            self._loop()
+        finally:
+            self.done.set()
+            with contextlib.suppress(Exception):
+                self.env.close()
+
+    def _loop(self) -> None:
+        cfg = self.config
+        while not self.started:  # the learner has read its checkpoint: the step the run is at
+            if self._watchdog() is not None:
+                return
+            time.sleep(0.01)
+        obs = self._begin_episode()
+        if obs is None:
+            return
+        length, next_tick, last_step = 0, time.monotonic(), None
+        while True:
+            held = self._hold_if_needed()
+            if held == "exit":
+                return
+            if held == "resumed":  # a stop cut the episode: a new one begins
+                obs = self._begin_episode()
+                if obs is None:
+                    return
+                length, next_tick, last_step = 0, time.monotonic(), None
+                continue
+            action = self._action(obs)
+            started = time.monotonic()
+            raw, reward, terminated, truncated, info = self.env.step(scale_action(action, self.action_space))
+            period = None if last_step is None else started - last_step
+            last_step = started
+            self.step, length = self.step + 1, length + 1
+            obs = model_image(raw, cfg.image_size, cfg.env_id)
+            display = display_image(self.env, cfg.display_size, obs)
+            self.frame = display
+            self.outbox.put(("step", action, obs, float(reward), bool(terminated), bool(truncated), info, display,
+                             period))  # fmt: skip
+            if terminated or truncated or length >= cfg.episode_steps:
+                obs = self._begin_episode()
+                if obs is None:
+                    return
+                length, next_tick, last_step = 0, time.monotonic(), None
+                continue
+            next_tick += self.period
+            delay = next_tick - time.monotonic()
+            if delay < -self.period:  # more than a period late (a slow env step): the rate restarts from now
+                next_tick = time.monotonic()
+            elif delay > 0:
+                self.wake.wait(delay)
+
+    def _action(self, obs: np.ndarray) -> np.ndarray:
+        """Uniformly random before the warm-up's end or the first weights; then the policy's sample."""
+        if self.step < self.config.initial_random_steps or not self.has_policy:
+            return self.rng.uniform(-1.0, 1.0, self.action_space.shape).astype(np.float32)
+        return self.agent.act_batch(obs[None], deterministic=False, generator=self.generator)[0]
+
+    def _set_state(self, state: str) -> None:
+        if state != self.state:
+            self.state = state
+            self.outbox.put(("state", state))
+
+    def _hold_if_needed(self) -> str | None:
+        """Hold the arm while the watchdog or a person says so: "exit" (the learner is gone or closed the
+        actor), "resumed" (a stop ended: the episode is over), None (act now)."""
+        self.wake.clear()
+        reason = self._watchdog()
+        if reason is None and not self.controls.stop_requested:
+            return None
+        self._stop_arm(ActorState.STOPPED if reason in (None, ActorState.CLOSED) else reason)
+        if reason in EXIT_REASONS:
+            return "exit"
+        if reason == ActorState.DATABASE_GONE:  # the person must see it: stopped until they press Resume
+            self._wait_for_store()
+        while True:
+            self.wake.clear()
+            reason = self._watchdog()
+            if reason in EXIT_REASONS:
+                return "exit"
+            if reason is None and not self.controls.stop_requested:
+                return "resumed"
+            self.wake.wait(self.period)
+
+    def _stop_arm(self, state: str) -> None:
+        if not getattr(self.env.unwrapped, "stopped", False):
+            stop = getattr(self.env.unwrapped, "stop", None)
+            if stop is not None:
+                stop()
+        self._set_state(state)
+        if state in (ActorState.LEARNER_GONE, ActorState.DATABASE_GONE):
+            print(f"actor of run {self.settings.run_id}: arm {state}", flush=True)
+        with contextlib.suppress(Exception):  # the pages see it now (and the actor may exit next)
+            self.store.report_actor(run_id=self.settings.run_id, state=state)
+
+    def _wait_for_store(self) -> None:
+        """After an outage: once the store answers again, the run's robot is marked stopped (a person resumes)."""
+        while True:
+            with contextlib.suppress(Exception):
+                self.store.request_robot_stop(run_id=self.settings.run_id)
+                self.controls.stop_requested, self.controls.last_answer = True, time.monotonic()
+                return
+            if self._watchdog() in EXIT_REASONS:
+                return
+            time.sleep(self.period)
+
+    def _begin_episode(self) -> np.ndarray | None:
+        """Reset the scene (a person first, when needed) and send the first observation; None: exit."""
+        cfg, run_id = self.config, self.settings.run_id
+        if self.settings.person_reset or getattr(self.env.unwrapped, "needs_person_reset", False):
+            self._set_state(ActorState.WAITING_FOR_RESET)
+            asked_at: int | None = None  # the Ready count when the reset was asked for (None: not asked yet)
+            while asked_at is None or self.controls.reset_count <= asked_at:
+                if asked_at is None:  # (while the store is unreachable the watchdog holds the arm)
+                    with contextlib.suppress(Exception):
+                        asked_at = self.store.request_scene_reset(run_id=run_id).reset_count
+                if self._hold_if_needed() == "exit":
+                    return None
+                self._refresh_frame()
+                self.wake.wait(self.period)
+        raw, info = self.env.reset()
+        obs = model_image(raw, cfg.image_size, cfg.env_id)
+        display = display_image(self.env, cfg.display_size, obs)
+        self.frame = display
+        self._set_state(ActorState.ACTING)
+        self.outbox.put(("reset", obs, info, display))
+        return obs
+
+    def _refresh_frame(self) -> None:
+        """While the person resets: the live view follows the camera (a robot env reads it anew; others render)."""
+        unwrapped = self.env.unwrapped
+        with contextlib.suppress(Exception):
+            if hasattr(unwrapped, "read_camera"):
+                unwrapped.last_frame = unwrapped.read_camera()
+            self.frame = display_image(self.env, self.config.display_size, self.frame)
+
+
+def serve(settings: ActorSettings, connection: Connection, outbox: Any) -> None:
+    """The actor process: run until the learner closes it or goes away; an error goes to the learner."""
+    try:
+        _Actor(settings, connection, outbox).run()
+    except Exception:
+        outbox.put(("error", traceback.format_exc()))
+
+
+# ====================================================================== the learner's side
+class ActorError(RuntimeError):
+    """The actor process failed (its traceback is the message) or went away."""
+
+
+@dataclass
+class ActorStep:
+    """One message of the actor: a step ("step"), an episode's first observation ("reset"), or a state."""
+
+    kind: str
+    action: np.ndarray | None = None
+    observation: np.ndarray | None = None
+    reward: float = 0.0
+    terminated: bool = False
+    truncated: bool = False
+    info: dict[str, Any] = field(default_factory=dict)
+    display: np.ndarray | None = None
+    period: float | None = None
+    state: str | None = None
+
+
+class ActorProcess:
+    """The learner's handle on its actor: start it, send it policies, take its messages, close it."""
+
+    def __init__(self, settings: ActorSettings) -> None:
+        context = multiprocessing.get_context("spawn")
+        self.connection, child = context.Pipe()
+        self.outbox = context.Queue()
+        self.process = context.Process(
+            target=serve, args=(settings, child, self.outbox), name=f"actor-run-{settings.run_id}", daemon=True
+        )
+        self.process.start()
+        child.close()
+        self.send_lock = threading.Lock()
+        self.closed = threading.Event()
+        self.display: np.ndarray | None = None
+        message = self._get(START_SECONDS)
+        if message is None or message[0] != "ready":
+            self.close()
+            raise ActorError(f"the actor did not start within {START_SECONDS:.0f} s: {message}")
+        self.action_space, self.observation_space = message[1], message[2]
+        self.keepalive = threading.Thread(target=self._keep_alive, name="actor-keepalive", daemon=True)
+        self.keepalive.start()
+
+    # the loop reads these as it reads a training env's
+    @property
+    def unwrapped(self) -> "ActorProcess":
+        return self
+
+    def render(self) -> np.ndarray | None:
+        """The display frame sent with the last message (the state of the newest observation)."""
+        return self.display
+
+    def start(self, step: int) -> None:
+        """The run is at `step` (after its checkpoint): the actor may begin its first episode."""
+        self._send(("start", step))
+
+    def send_policy(self, modules: dict[str, dict[str, Any]]) -> None:
+        self._send(("policy", modules))
+
+    def next_message(self, timeout: float) -> ActorStep | None:
+        """The actor's next message within `timeout` seconds, or None."""
+        message = self._get(timeout)
+        if message is None:
+            return None
+        kind = message[0]
+        if kind == "error":
+            raise ActorError(f"the actor failed:\n{message[1]}")
+        if kind == "step":
+            _, action, obs, reward, terminated, truncated, info, display, period = message
+            self.display = display
+            return ActorStep(kind, action, obs, reward, terminated, truncated, info, display, period)
+        if kind == "reset":
+            _, obs, info, display = message
+            self.display = display
+            return ActorStep(kind, observation=obs, info=info, display=display)
+        return ActorStep(kind, state=message[1])
+
+    def _get(self, timeout: float) -> tuple | None:
+        try:
+            return self.outbox.get(timeout=timeout)
+        except queue.Empty:
+            if not self.process.is_alive():
+                raise ActorError(f"the actor exited (code {self.process.exitcode})") from None
+            return None
+
+    def _send(self, message: tuple) -> None:
+        with self.send_lock:
+            if not self.closed.is_set():
+                self.connection.send(message)
+
+    def _keep_alive(self) -> None:
+        while not self.closed.wait(KEEPALIVE_SECONDS):
+            try:
+                self._send(("beat",))
+            except (BrokenPipeError, OSError):
+                return
+
+    def close(self) -> None:
+        """Tell the actor to hold the arm and exit; wait for it (a few seconds), else end it."""
+        with contextlib.suppress(BrokenPipeError, OSError):
+            self._send(("close",))
+        self.closed.set()
+        self.process.join(timeout=10)
+        if self.process.is_alive():
+            self.process.terminate()
+            self.process.join(timeout=5)
+        with contextlib.suppress(Exception):
+            self.outbox.close()
+            self.outbox.cancel_join_thread()
+        self.connection.close()

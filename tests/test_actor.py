@@ -1,0 +1,173 @@
+"""The real-time actor: the env steps at its own rate in its own process while the learner trains beside it;
+a person's reset before each episode, Stop robot and Resume through the store; the watchdog holds the arm when
+the learner is killed."""
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from app.migrate import upgrade
+from contract.config import TrainConfig
+from contract.settings import Settings
+from contract.store import RunStatus, Store
+from learner.actor import ActorState
+from learner.checkpoint import checkpoint_path, load_checkpoint
+from learner.testing_envs import add_dot_goals
+from learner.worker import work
+
+ROOT = Path(__file__).resolve().parent.parent
+ENV = "learner.testing_envs:DotReach-v0"
+HZ = 40.0
+
+
+def real_time_config(**overrides: object) -> TrainConfig:
+    values: dict[str, object] = dict(
+        env_id=ENV, image_size=16, conv_filters=4, hidden_dim=32, batch_size=16, classifier_batch_size=8,
+        total_steps=200, episode_steps=25, initial_random_steps=50, epoch_steps=50, classifier_steps=2,
+        query_every=50, query_budget=3, eval_every=100, checkpoint_every=100, log_every=50, display_size=32,
+        rollout_size=16, replay_capacity=1000, heartbeat_seconds=0.2, query_candidates=4, control_hz=HZ,
+        reset_every_episode=True, updates_per_step=2, policy_sync_seconds=0.2,
+    )  # fmt: skip
+    values.update(overrides)
+    return TrainConfig(**values)  # type: ignore[arg-type]
+
+
+@pytest.fixture
+def setup(tmp_path: Path) -> Iterator[tuple[Settings, Store, int]]:
+    url = f"sqlite:///{tmp_path / 'raq.sqlite3'}"
+    upgrade(url)
+    store = Store(url)
+    settings = Settings(data_dir=tmp_path, database_url=url, stale_heartbeat_seconds=60.0)
+    yield settings, store, add_dot_goals(store)
+    store.dispose()
+
+
+def create_run(store: Store, goal_set_id: int, config: TrainConfig) -> int:
+    run = store.create_run(
+        env_id=config.env_id, algorithm=config.algorithm, config=config.to_dict(), seed=config.seed,
+        goal_set_id=goal_set_id, total_steps=config.total_steps,
+    )  # fmt: skip
+    return run.id
+
+
+def resetter_and_oracle(store: Store, run_id: int, done: threading.Event, presses: list[float]) -> None:
+    """A person who presses Ready whenever the actor asks for a reset, and answers every query truthfully."""
+    while not done.is_set():
+        if store.robot_status(run_id=run_id).reset_needed:
+            store.scene_ready(run_id=run_id)
+            presses.append(time.monotonic())
+        for query in store.pending_queries(run_id=run_id):
+            store.answer_query(query_id=query.id, success=bool(query.ground_truth_success), labeler="oracle")
+        time.sleep(0.02)
+
+
+def test_real_time_run_trains_beside_its_actor_with_a_reset_before_every_episode(
+    setup: tuple[Settings, Store, int],
+) -> None:
+    settings, store, goal_set_id = setup
+    config = real_time_config()
+    run_id = create_run(store, goal_set_id, config)
+    done, presses = threading.Event(), []
+    person = threading.Thread(target=resetter_and_oracle, args=(store, run_id, done, presses), daemon=True)
+    person.start()
+    try:
+        assert work(settings, worker_name="w", once=True) == 0
+    finally:
+        done.set()
+        person.join()
+    run = store.get_run(run_id=run_id)
+    assert run.status == RunStatus.FINISHED, run.status_reason
+    assert run.step == config.total_steps
+    episodes = config.total_steps // config.episode_steps
+    assert store.robot_status(run_id=run_id).reset_count >= episodes  # one Ready before every episode
+    names = {metric.name for metric in store.metrics(run_id=run_id)}
+    assert {"actor/period_ms_p99", "critic/loss", "reward/loss", "queries/asked"} <= names
+    periods = [m.value for m in store.metrics(run_id=run_id, names=["actor/period_ms_mean"])]
+    assert all(abs(value - 1000 / HZ) < 10 for value in periods), periods  # the actor kept its rate
+    updates = [m.value for m in store.metrics(run_id=run_id, names=["perf/updates_per_second"])]
+    assert updates and max(updates) > 0
+    messages = [event.message for event in store.events(run_id=run_id, limit=1000)]
+    assert f"robot: {ActorState.WAITING_FOR_RESET}" in messages
+    assert store.camera_frame(run_id=run_id) is not None  # the live view was published
+    state = load_checkpoint(checkpoint_path(settings.checkpoint_dir, run_id))
+    assert state is not None  # the updates beside the actor: some, and never more than the cap per env step
+    assert 0 < state["total_updates"] <= (config.total_steps - config.initial_random_steps + 1) * 2
+
+
+def test_stop_robot_halts_actions_within_a_period_and_resume_continues(setup: tuple[Settings, Store, int]) -> None:
+    settings, store, goal_set_id = setup
+    config = real_time_config(total_steps=400, control_hz=5.0, reset_every_episode=False, episode_steps=1000)
+    run_id = create_run(store, goal_set_id, config)
+    learner = threading.Thread(target=work, args=(settings,), kwargs={"worker_name": "w", "once": True})
+    learner.start()
+    try:
+        deadline = time.monotonic() + 120
+        while store.robot_status(run_id=run_id).actor_state != ActorState.ACTING:
+            assert time.monotonic() < deadline and learner.is_alive()
+            time.sleep(0.01)
+        time.sleep(1.0)
+        asked = time.monotonic()
+        store.request_robot_stop(run_id=run_id)
+        while store.robot_status(run_id=run_id).actor_state != ActorState.STOPPED:
+            assert time.monotonic() - asked < 5
+            time.sleep(0.005)
+        honoured = time.monotonic() - asked
+        assert honoured < 1.0 / config.control_hz  # within a control period, the state's write included
+        time.sleep(1.0)  # the learner takes the steps the actor sent before the stop (heartbeats carry its step)
+        step = store.get_run(run_id=run_id).step
+        time.sleep(1.5)  # stopped: no env step is taken
+        assert store.get_run(run_id=run_id).step == step
+        store.resume_robot(run_id=run_id)
+        deadline = time.monotonic() + 30
+        while store.get_run(run_id=run_id).step <= step:
+            assert time.monotonic() < deadline, "the run did not continue after Resume"
+            time.sleep(0.05)
+    finally:
+        store.request_stop(run_id=run_id)
+        learner.join(timeout=180)
+    messages = [event.message for event in store.events(run_id=run_id, limit=1000)]
+    assert f"robot: {ActorState.STOPPED}" in messages
+
+
+def test_a_killed_learner_leaves_the_arm_held_safe_within_the_watchdog_time(
+    setup: tuple[Settings, Store, int],
+) -> None:
+    settings, store, goal_set_id = setup
+    config = real_time_config(
+        env_id="robot.standin:PusherStandIn-v0", image_size=32, control_hz=5.0, total_steps=100_000,
+        reset_every_episode=False, display_size=64,
+    )  # fmt: skip
+    run_id = create_run(store, goal_set_id, config)
+    env = dict(os.environ, RAQ_DATA_DIR=str(settings.data_dir), RAQ_DATABASE_URL=settings.resolved_database_url)
+    env.update(OMP_NUM_THREADS="1", MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    learner = subprocess.Popen(
+        [sys.executable, "-m", "learner.worker", "--once", "--name", "doomed"], cwd=ROOT, env=env,
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while store.robot_status(run_id=run_id).actor_state != ActorState.WAITING_FOR_RESET:
+            assert learner.poll() is None and time.monotonic() < deadline
+            time.sleep(0.02)
+        store.scene_ready(run_id=run_id)  # the stand-in needs a person's reset before its episodes
+        while store.get_run(run_id=run_id).step < 3:
+            assert learner.poll() is None and time.monotonic() < deadline
+            time.sleep(0.02)
+        learner.send_signal(signal.SIGKILL)
+        killed = time.monotonic()
+        while store.robot_status(run_id=run_id).actor_state != ActorState.LEARNER_GONE:
+            assert time.monotonic() - killed < 5, store.robot_status(run_id=run_id)
+            time.sleep(0.01)
+        assert time.monotonic() - killed < config.watchdog_seconds
+    finally:
+        if learner.poll() is None:
+            learner.kill()
+        output = learner.communicate(timeout=30)[0].decode()
+    assert f"arm {ActorState.LEARNER_GONE}" in output
