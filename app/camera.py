@@ -15,7 +15,6 @@ used and this server's env is closed: a real camera opens in one process only.
 """
 
 import atexit
-import importlib
 import io
 import queue
 import threading
@@ -29,10 +28,9 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.envs.registration import load_env_creator
 from PIL import Image
 
-from contract.envs import SIM_ENV_IDS, encode_png, make_env, module_env_ids
+from contract.envs import SIM_ENV_IDS, encode_png, env_class, make_env, module_env_ids
 from contract.images import model_view
 from contract.store import NotFound, Store
 from robot.base import RobotEnv
@@ -85,22 +83,6 @@ class CameraFrame:
 
 
 # ---------------------------------------------------------------- which envs have a camera
-def env_class(env_id: str) -> type | None:
-    """The class gymnasium's registry names for env_id ("module:EnvId" imports the module first), or None when
-    its entry point is not a class (a factory function: what it makes cannot be told without calling it)."""
-    name = env_id
-    if ":" in env_id:
-        module, name = env_id.split(":", 1)
-        importlib.import_module(module)
-    spec = gym.registry.get(name)
-    if spec is None:
-        return None
-    entry = spec.entry_point
-    if isinstance(entry, str):
-        entry = load_env_creator(entry)
-    return entry if isinstance(entry, type) else None
-
-
 def has_camera(cls: type | None) -> bool:
     """A RobotEnv subclass that implements read_camera."""
     return isinstance(cls, type) and issubclass(cls, RobotEnv) and cls.read_camera is not RobotEnv.read_camera

@@ -8,7 +8,7 @@ from urllib.parse import urlencode
 
 from fastapi import APIRouter, File, HTTPException, Query, Response, UploadFile, status
 
-from app.camera import CameraFrame, CameraUnavailable, camera_env_ids, cameras, env_class, has_camera, photo_differences
+from app.camera import CameraFrame, CameraUnavailable, camera_env_ids, cameras, has_camera, photo_differences
 from app.deps import GoalExampleId, GoalSetId, ReadAuth, SettingsDep, StoreDep, WriteAuth
 from app.schemas import (
     WRITE_ERRORS,
@@ -28,7 +28,7 @@ from app.schemas import (
     errors,
     row_with,
 )
-from contract.envs import SIM_ENV_IDS, module_allowed
+from contract.envs import SIM_ENV_IDS, env_class, module_allowed
 from contract.images import ImageRejected, PreparedImage, decode_upload, prepare_upload
 from contract.settings import Settings
 from contract.store import GoalSet, Store
