@@ -247,8 +247,9 @@ class Trainer:
         episode.length = -1  # (no episode until that message)
 
     def _real_time_steps(self, episodes: "list[EnvEpisode]") -> list[tuple["EnvEpisode", np.ndarray, tuple]]:
-        """Real time: the actor's next step, SAC updates meanwhile (at most updates_per_step for each step taken;
-        the policy sent every policy_sync_seconds). An episode's first observation is taken on the way. Nothing
+        """Real time: the actor's next step, and SAC updates while none is waiting (at most updates_per_step for
+        each step taken; fewer when the updates are slower than the robot); the policy sent every
+        policy_sync_seconds. An episode's first observation is taken on the way. Nothing
         after REAL_TIME_SLICE seconds without a step (a person resetting, a stopped robot), so that the loop sees
         its stop and interrupt meanwhile."""
         assert self.actor is not None
@@ -256,11 +257,13 @@ class Trainer:
         deadline = time.monotonic() + REAL_TIME_SLICE
         while True:
             self._send_policy()
+            message = self.actor.next_message(0.0)  # the actor's steps first: the replay never lags the robot
             due = max(0, counters.step - cfg.initial_random_steps + 1) * cfg.updates_per_step
-            updating = counters.total_updates < due
-            if updating:
+            if message is None and counters.total_updates < due:
                 self._sac_updates(1)
-            message = self.actor.next_message(0.0 if updating else ACTOR_POLL_SECONDS)
+                continue
+            if message is None:
+                message = self.actor.next_message(ACTOR_POLL_SECONDS)
             if message is None:
                 if time.monotonic() >= deadline:
                     self.control.tick()

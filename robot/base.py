@@ -50,7 +50,7 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     `display_size`: side of the view stored for a person (queries, rollouts).
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"]}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 5}
     needs_person_reset: ClassVar[bool] = True
     """A person must put the scene back before each episode."""
     control_hz: ClassVar[float] = 5.0

@@ -21,9 +21,14 @@ class PusherStandIn(RobotEnv):
     control_hz = 5.0
     needs_person_reset = True
 
-    def __init__(self, image_size: int = 84, camera_size: int = 384) -> None:
+    def __init__(
+        self, image_size: int = 84, render_size: int = 256, camera_size: int = 384, render_mode: str = "rgb_array"
+    ) -> None:
+        """`render_size`: the view stored for a person (the display size); `render_mode`: rgb_array only."""
+        if render_mode != "rgb_array":
+            raise ValueError("the stand-in robot renders rgb_array only")
         self.sim = VisualPusherEnv(image_size=image_size, render_size=camera_size)
-        super().__init__(action_dim=self.sim.action_space.shape[0], image_size=image_size)
+        super().__init__(action_dim=self.sim.action_space.shape[0], image_size=image_size, display_size=render_size)
         self.camera_size = camera_size
         self.held = False
         self._success: bool | None = None
