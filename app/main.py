@@ -15,6 +15,7 @@ from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import SQLAlchemyError
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
+from app.camera import close_cameras
 from app.database_outage import database_outage, database_unavailable
 from app.routers import (
     compare,
@@ -75,6 +76,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             yield
         finally:
             gc.unfreeze()
+            close_cameras()
             store.dispose()
 
     app = FastAPI(

@@ -29,7 +29,7 @@ from app.routers.goal_sets import MAX_FILES_PER_UPLOAD
 from contract.settings import Settings
 from contract.store import Store
 
-UPLOAD_PATH = re.compile(r"^/api/goal-sets/[^/]+/examples/?$")
+UPLOAD_PATH = re.compile(r"^/api/goal-sets/[^/]+/(examples|photo-check)/?$")
 PUBLIC_PATHS = ("/login", "/logout", "/health")
 PUBLIC_PREFIXES = ("/static/",)
 LOGIN_BODY_LIMIT = 16 * 1024  # a token and a path

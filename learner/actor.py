@@ -202,7 +202,7 @@ class _Actor:
             self.step, length = self.step + 1, length + 1
             obs = model_image(raw, cfg.image_size, cfg.env_id)
             display = display_image(self.env, cfg.display_size, obs)
-            self.frame = display
+            self.frame = self._camera_view(display)
             self.outbox.put(("step", action, obs, float(reward), bool(terminated), bool(truncated), info, display,
                              period))  # fmt: skip
             if terminated or truncated or length >= cfg.episode_steps:
@@ -289,7 +289,7 @@ class _Actor:
         raw, info = self.env.reset()
         obs = model_image(raw, cfg.image_size, cfg.env_id)
         display = display_image(self.env, cfg.display_size, obs)
-        self.frame = display
+        self.frame = self._camera_view(display)
         self._set_state(ActorState.ACTING)
         self.outbox.put(("reset", obs, info, display))
         return obs
@@ -300,7 +300,12 @@ class _Actor:
         with contextlib.suppress(Exception):
             if hasattr(unwrapped, "read_camera"):
                 unwrapped.last_frame = unwrapped.read_camera()
-            self.frame = display_image(self.env, self.config.display_size, self.frame)
+            self.frame = self._camera_view(display_image(self.env, self.config.display_size, self.frame))
+
+    def _camera_view(self, display: np.ndarray) -> np.ndarray:
+        """What the live view shows (and a goal capture takes): a robot env's whole camera frame, else `display`."""
+        frame = getattr(self.env.unwrapped, "last_frame", None)
+        return display if frame is None else np.asarray(frame)
 
 
 def serve(settings: ActorSettings, connection: Connection, outbox: Any) -> None:
