@@ -14,8 +14,7 @@ and the update itself), so both figures share the machine's state:
     R = E / U, the share of the update bound the loop reaches.
 
 On the CPU the updates run on the update thread while the loop's thread acts, steps the envs and scores query
-candidates (TrainConfig.update_thread), and f_psi's epoch runs there while the evaluation runs; with `--set
-classifier_beside_updates=true` an epoch's classifier steps run beside the updates on the loop's thread instead.
+candidates (TrainConfig.update_thread), and f_psi's epoch runs there while the evaluation runs.
 The lines before the last say how long each part took per env step: the loop thread's parts, then parts timed
 wherever they run (inside those), and the seconds of gradient steps (SAC's and f_psi's) per second of the loop,
 which can pass 1 when they run on both threads at once.
@@ -150,7 +149,6 @@ def main() -> int:
         timer = PartTimer()
         timer.wrap(trainer, "_step_batch", "acting, env steps and SAC updates")
         timer.wrap(trainer, "_end_of_epoch_and_evaluation", "epoch ends and evaluations")
-        timer.wrap(trainer, "_publish_classifier_epoch", "classifier epochs published")
         timer.wrap(trainer, "_observe", "query candidates")
         timer.wrap(trainer.queries, "ask", "queries asked")
         timer.wrap(trainer, "_log", "metrics")
@@ -158,10 +156,7 @@ def main() -> int:
         timer.wrap(trainer, "_simulate", "env steps", inner=True)
         timer.wrap(trainer.queries, "score_pending", "query scoring", inner=True)
         timer.wrap(trainer, "_sac_updates", "SAC updates", inner=True)
-        if trainer.classifier_beside:
-            timer.wrap(trainer.updates, "classifier_step_with", "classifier steps", inner=True)
-        else:
-            timer.wrap(trainer, "_classifier_steps", "classifier steps", inner=True)
+        timer.wrap(trainer, "_classifier_steps", "classifier steps", inner=True)
         timer.wrap(trainer.evaluator, "run_episodes", "evaluation episodes", inner=True)
         started: list[float] = []
         ended: list[float] = []
@@ -201,11 +196,7 @@ def main() -> int:
         where = "the updates after the envs step, f_psi's epochs at once"
     else:
         where = "the updates on the update thread while the loop's thread acts, steps the envs and scores; "
-        where += (
-            "an epoch's classifier steps on the loop's thread beside them"
-            if trainer.classifier_beside
-            else "f_psi's epoch on the update thread while the evaluation runs"
-        )
+        where += "f_psi's epoch on the update thread while the evaluation runs"
     print(
         "timed wherever they run, ms per env step: "
         + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.inner_seconds.items())

@@ -32,6 +32,8 @@ FLOAT_MAXIMA: dict[str, float] = {
     "mixup_alpha": 100.0, "heartbeat_seconds": 3600.0, "no_answer_share": 1.0, "control_hz": 1000.0,
     "policy_sync_seconds": 3600.0, "watchdog_seconds": 60.0,
 }  # fmt: skip
+RETIRED_FIELDS = frozenset({"classifier_beside_updates"})
+"""Fields that runs stored by earlier versions may hold and that no longer change anything: dropped when read."""
 DEVICE_PATTERN = re.compile(r"cpu|cuda(:(1[0-5]|[0-9]))?")
 ENV_ID_PATTERN = re.compile(r"[A-Za-z0-9_.\-/]+(:[A-Za-z0-9_.\-/]+)?")
 # Memory a run may take on this host: its estimate (TrainConfig.memory_estimate) must stay under this share of RAM.
@@ -215,9 +217,6 @@ class ExecutionConfig:
     """Batches sampled and rewarded on the host (numpy, cached f_psi) or device (CUDA graphs); auto: GPU."""
     update_thread: Literal["auto", "on", "off"] = "auto"
     """SAC updates on a second thread while the envs step (MuJoCo leaves the GIL); auto: on unless on a GPU."""
-    classifier_beside_updates: bool = False
-    """With the update thread, host pipeline: an epoch's classifier steps one per env step beside the SAC updates on
-    a copy of f_psi, published when done (rewards lag classifier_steps env steps; R 0.91, not 0.86); False: at once."""
     heartbeat_seconds: float = 5.0
     """Seconds between heartbeats to the store (a stop request is noticed this quickly)."""
     control_hz: float = 0.0
@@ -348,8 +347,9 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "TrainConfig":
-        """Build from stored JSON; unknown keys are an error that names them."""
+        """Build from stored JSON (the fields of RETIRED_FIELDS dropped); unknown keys are an error that names them."""
         known = {field.name for field in fields(cls)}
+        values = {name: value for name, value in values.items() if name not in RETIRED_FIELDS}
         unknown = sorted(set(values) - known)
         if unknown:
             raise ValueError(f"{unknown[0]}: unknown config field")

@@ -60,8 +60,8 @@ class RewardModel:
     Two copies of f_psi: `trainee`, which the classifier steps train (Adam's parameters), and `net`, the live one
     that rewards and query scores read; `publish` copies the trainee into the live net and increases the version,
     so a reward cached with the version that computed it is exact until the next publish. A step publishes at once
-    unless told not to: an epoch trained beside the SAC updates (`learner.updates.ClassifierEpoch`) publishes
-    when its last step is done, so the updates read one f_psi throughout.
+    unless told not to: an epoch trained on the update thread beside an evaluation publishes when its last step
+    is done, so the evaluation's record reads one f_psi.
     """
 
     def __init__(self, config: TrainConfig, rng: np.random.Generator) -> None:

@@ -253,9 +253,8 @@ class SACAgent:
 
 class PolicyCopy:
     """A copy of the actor (and shared encoder) that draws its actions from its own generator, so that it can act
-    on one thread while the SAC updates change the originals on another: the loop's acting beside the updates,
-    and f_psi's AIRL form beside them (`learner.updates.ClassifierEpoch`). `sync` copies the originals' weights
-    in again; call it while no update runs."""
+    on one thread while the SAC updates change the originals on another (the loop's acting beside the updates).
+    `sync` copies the originals' weights in again; call it while no update runs."""
 
     def __init__(self, agent: SACAgent, generator: torch.Generator) -> None:
         self.agent, self.generator = agent, generator

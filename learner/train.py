@@ -9,8 +9,9 @@ With the update thread (the CPU's default) the loop's thread does beside each ba
 them done: acting (on a copy of pi synced before the updates start: the same pi the step would act with), the env
 steps, scoring the query candidates waiting for a batch (f_psi is not the updates' to change). At an epoch's end
 f_psi trains on the update thread while the evaluation's episodes run on the loop's thread (they read pi only).
-With classifier_beside_updates an epoch's f_psi steps run one per env step beside the updates instead, on a copy
-of f_psi published when they are done.
+
+With a robot env (or control_hz set) the env runs in real time instead, in an actor process (learner/actor.py):
+the loop takes its steps as they come and runs the SAC updates while none is waiting.
 
 Reward timing: the transition (s_t, a_t, s_{t+1}) is rewarded r = f_psi(s_{t+1}) (sparse: success(s_{t+1})),
 so the action that reaches the goal is the one credited; Alg. 2 writes r(s_t) but the state it means is the
@@ -65,7 +66,7 @@ from learner.replay import ReplayBuffer
 from learner.reward import RewardModel
 from learner.run_control import Counters, Outcome, RunControl
 from learner.sac import SACAgent
-from learner.updates import ClassifierEpoch, HostUpdates, make_updates
+from learner.updates import HostUpdates, make_updates
 
 __all__ = ["Outcome", "Trainer", "config_for_run", "train_run"]
 CHECKPOINT_VERSION = 1
@@ -162,12 +163,9 @@ class Trainer:
         self._begin = self._begin_episode if self.actor is None else self._await_actor_episode
         self.actor_periods: list[float] = []
         self.policy_sent_at = -math.inf
-        # with the update thread, on the host pipeline, f_psi's epochs run beside the SAC updates (one step per env
-        # step) or, by default, on the update thread while the loop's thread evaluates
-        host_threads = self.update_thread is not None and isinstance(self.updates, HostUpdates)
-        self.classifier_beside = host_threads and config.classifier_beside_updates
-        self.classifier_beside_evaluation = host_threads and not config.classifier_beside_updates
-        self.classifier_epoch: ClassifierEpoch | None = None
+        # with the update thread, on the host pipeline, an epoch's f_psi steps run on the update thread while the
+        # loop's thread evaluates
+        self.classifier_beside_evaluation = self.update_thread is not None and isinstance(self.updates, HostUpdates)
         # acting draws from its own generator; with the update thread it acts on a copy of pi (synced per batch)
         self.acting_generator = torch.Generator(device=self.agent.device).manual_seed(config.seed)
         self.acting_copy = self.agent.policy_copy(self.acting_generator) if self.update_thread is not None else None
@@ -229,8 +227,6 @@ class Trainer:
             if actions is None:
                 actions = self._actions(episodes)
             outcomes = self._simulate(episodes, actions)
-            if self.classifier_epoch is not None:  # one classifier step per env step, beside the updates
-                self.classifier_epoch.run(len(episodes))
             if self.queries is not None:
                 self.queries.score_full_batch()
         finally:
@@ -299,7 +295,6 @@ class Trainer:
 
     def _after_step(self) -> None:
         cfg, step = self.config, self.counters.step
-        self._publish_classifier_epoch(finish=False)
         if self.queries is not None and (step % cfg.log_every == 0 or step % cfg.epoch_steps == 0):
             self.queries.read_answers()
         if step == cfg.initial_random_steps:
@@ -503,8 +498,8 @@ class Trainer:
             self._evaluate(training)
 
     def _end_of_epoch(self, *, beside_evaluation: bool = False) -> "Future[dict[str, float] | None] | None":
-        """f_psi's epoch: at once, beside the next env steps' updates (classifier_beside_updates) or, when an
-        evaluation follows and the update thread is there, on that thread (the future of its metrics)."""
+        """f_psi's epoch: at once or, when an evaluation follows and the update thread is there, on that thread (the
+        future of its metrics)."""
         model, cfg, counters = self.reward_model, self.config, self.counters
         if model is None:
             return None
@@ -513,13 +508,10 @@ class Trainer:
         if self.spec.negatives == "pool" and len(model.initial_negatives) == 0:
             model.initial_negatives = self._first_epoch_negatives()
         if not self.spec.train_once:
-            if self.classifier_beside:
-                self._begin_classifier_epoch()
-            elif beside_evaluation and self.classifier_beside_evaluation and cfg.classifier_steps:
+            if beside_evaluation and self.classifier_beside_evaluation and cfg.classifier_steps:
                 assert self.update_thread is not None
                 return self.update_thread.submit(self._classifier_steps, cfg.classifier_steps, beside=True)
-            else:
-                self._train_classifier(cfg.classifier_steps)
+            self._train_classifier(cfg.classifier_steps)
             return None
         if counters.naive_trained:
             return None
@@ -530,29 +522,6 @@ class Trainer:
         else:  # not marked trained: the checkpoint says so, and the resumed learner trains it again
             self.control.event("naive classifier training interrupted; it is redone after the resume")
         return None
-
-    def _begin_classifier_epoch(self) -> None:
-        """This epoch's classifier steps, to run beside the next env steps' SAC updates (one still running is
-        finished and published first)."""
-        self._publish_classifier_epoch(finish=True)
-        if self.config.classifier_steps:
-            assert isinstance(self.updates, HostUpdates)
-            seed = int(self.rng.integers(2**63))
-            self.classifier_epoch = ClassifierEpoch(self.updates, steps=self.config.classifier_steps, seed=seed)
-
-    def _publish_classifier_epoch(self, *, finish: bool) -> None:
-        """The epoch's f_psi live once its steps are done (`finish`: its remaining steps now, before a checkpoint
-        or the next epoch), its metrics recorded at this step."""
-        epoch = self.classifier_epoch
-        if epoch is None or not (epoch.done or finish):
-            return
-        epoch.run(epoch.steps)
-        self.classifier_epoch = None
-        assert self.reward_model is not None
-        if self.queries is not None:  # the observations waiting for a batch are scored by the f_psi of their time
-            self.queries.score_pending()
-        self.reward_model.publish()
-        self._record_classifier_metrics(epoch.metrics)
 
     def _first_epoch_negatives(self) -> np.ndarray:
         """Every observation of the first epoch (s and s' of its transitions), at most raq_initial_negatives."""
@@ -696,7 +665,6 @@ class Trainer:
         if not self.control.holds_run():  # taken over meanwhile: never overwrite the new holder's checkpoint
             self.control.beat_refused = True
             return
-        self._publish_classifier_epoch(finish=True)  # (a checkpoint holds one f_psi)
         if self.queries is not None:  # (a checkpoint keeps scored candidates, not the observations still waiting)
             self.queries.score_pending()
         started = time.monotonic()

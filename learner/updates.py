@@ -325,32 +325,6 @@ class DeviceUpdates:
         return notes
 
 
-class ClassifierEpoch:
-    """An epoch's classifier steps (Alg. 2 lines 9-11) run a few at a time on the loop's thread while the update
-    thread runs the SAC updates (`Trainer._step_envs_and_update`), so a second core trains f_psi: the steps train
-    the trainee and the live f_psi (rewards, query scores) stays as it was until the last step is done and the
-    trainer publishes it. Nothing it uses is changed or drawn from by the update thread meanwhile: its own
-    generators (batches, mixup, the AIRL form's actions), a copy of pi as of the epoch's end (Alg. 2 trains f_psi
-    with that pi too), the replay only read (the loop adds to it between the batches, outside the overlap)."""
-
-    def __init__(self, updates: HostUpdates, *, steps: int, seed: int) -> None:
-        self.updates, self.steps, self.done_steps = updates, steps, 0
-        self.rng = np.random.default_rng(seed)
-        generator = torch.Generator(device=updates.agent.device).manual_seed(seed)
-        self.policy = updates.agent.policy_copy(generator) if updates.spec.airl else None
-        self.metrics: dict[str, float] = {}
-
-    @property
-    def done(self) -> bool:
-        return self.done_steps >= self.steps
-
-    def run(self, count: int) -> None:
-        """Up to `count` more steps; the last one also measures the accuracies."""
-        for _ in range(min(count, self.steps - self.done_steps)):
-            self.done_steps += 1
-            self.metrics = self.updates.classifier_step_with(self.rng, self.policy, accuracy=self.done, publish=False)
-
-
 def make_updates(
     config: TrainConfig, *, agent: SACAgent, replay: ReplayBuffer, reward_model: RewardModel | None,
     spec: AlgorithmSpec, rng: np.random.Generator,

@@ -35,7 +35,7 @@ def test_the_api_and_the_form_list_every_field(client: TestClient) -> None:
     batch = next(entry for entry in parts["sac"] if entry["name"] == "batch_size")
     assert batch["default"] == TrainConfig().batch_size and batch["description"] == "SAC minibatch size."
     page = client.get("/runs/new").text
-    assert 'id="config-reference"' in page and "<code>classifier_beside_updates</code>" in page
+    assert 'id="config-reference"' in page and "<code>watchdog_seconds</code>" in page
 
 
 def test_the_real_robot_preset_is_the_papers_robot_settings() -> None:
