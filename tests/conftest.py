@@ -10,6 +10,7 @@ from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import httpx
 import pytest
@@ -21,6 +22,9 @@ from app.main import create_app
 from app.migrate import upgrade
 from contract.settings import Settings
 from contract.store import Store
+
+if TYPE_CHECKING:
+    from playwright.sync_api import Browser, Page
 
 ROOT = Path(__file__).resolve().parent.parent
 # The tests' own env module, allowed for every learner the tests start (in-process or as a subprocess).
@@ -222,3 +226,51 @@ def make_live_server(database_url: str, tmp_path: Path) -> Iterator[Callable[...
 def live_server(make_live_server: Callable[..., LiveServer]) -> str:
     """A live server without a token; its base URL."""
     return make_live_server().url
+
+
+# ---------------------------------------------------------------- the browser tests' Chromium and windows
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+    "--disable-sync",
+]
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator["Browser"]:
+    """Debian's Chromium, one per test module."""
+    from playwright.sync_api import sync_playwright  # noqa: PLC0415 - only the browser tests need it
+
+    with sync_playwright() as playwright:
+        launched = playwright.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+        yield launched
+        launched.close()
+
+
+def _opened(browser: "Browser", **context_options: object) -> Iterator["Page"]:
+    context = browser.new_context(**context_options)
+    opened = context.new_page()
+    opened.set_default_timeout(20_000)
+    yield opened
+    context.close()
+
+
+@pytest.fixture
+def page(browser: "Browser") -> Iterator["Page"]:
+    """A desktop browser window."""
+    yield from _opened(browser, viewport={"width": 1360, "height": 900})
+
+
+@pytest.fixture
+def desktop(browser: "Browser") -> Iterator["Page"]:
+    """The same desktop window, for tests that name it so beside `phone`."""
+    yield from _opened(browser, viewport={"width": 1360, "height": 900})
+
+
+@pytest.fixture
+def phone(browser: "Browser") -> Iterator["Page"]:
+    """A phone's browser (touch, 390 x 844)."""
+    yield from _opened(browser, viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True)

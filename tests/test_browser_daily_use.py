@@ -4,12 +4,11 @@ delete from the run page; /docs with every request outside the server refused; t
 
 import json
 import re
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from playwright.sync_api import Browser, Page, expect
-from test_browser import _gif, _scene, _shot, browser  # noqa: F401 - the module's Chromium fixture
+from test_browser import _gif, _scene, _shot
 
 from contract.store import RunStatus, Store
 
@@ -23,24 +22,6 @@ def watch(page: Page, server: str) -> list[str]:
     page.on("console", lambda m: problems.extend([m.text] if "Security Policy" in m.text else []))
     page.on("response", lambda r: problems.extend([f"{r.status} {r.url}"] if r.status >= 400 else []))
     return problems
-
-
-@pytest.fixture
-def phone(browser: Browser) -> Iterator[Page]:  # noqa: F811
-    context = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True)
-    opened = context.new_page()
-    opened.set_default_timeout(15_000)
-    yield opened
-    context.close()
-
-
-@pytest.fixture
-def desktop(browser: Browser) -> Iterator[Page]:  # noqa: F811
-    context = browser.new_context(viewport={"width": 1360, "height": 900})
-    opened = context.new_page()
-    opened.set_default_timeout(15_000)
-    yield opened
-    context.close()
 
 
 def _run(store: Store, name: str, priority: int = 0) -> int:
@@ -258,7 +239,7 @@ def test_exports_download_from_the_run_page(desktop: Page, live_server: str, sto
 
 
 def test_honest_progress_and_a_notification_when_a_question_waits(
-    browser: Browser,  # noqa: F811
+    browser: Browser,
     live_server: str,
     store: Store,
 ) -> None:

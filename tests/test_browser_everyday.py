@@ -4,35 +4,16 @@ order and goal photos, heartbeats of stopped runs, the runs table on a 390-px ph
 charts, and training a finished run further."""
 
 import re
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from playwright.sync_api import Browser, Page, expect
-from test_browser import _scene, _shot, browser  # noqa: F401 - the module's Chromium fixture
+from playwright.sync_api import Page, expect
+from test_browser import _scene, _shot
 from test_browser_daily_use import watch
 
 from contract.store import RunStatus, Store
 
 pytestmark = pytest.mark.browser
-
-
-@pytest.fixture
-def desktop(browser: Browser) -> Iterator[Page]:  # noqa: F811
-    context = browser.new_context(viewport={"width": 1360, "height": 900})
-    opened = context.new_page()
-    opened.set_default_timeout(15_000)
-    yield opened
-    context.close()
-
-
-@pytest.fixture
-def phone(browser: Browser) -> Iterator[Page]:  # noqa: F811
-    context = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True)
-    opened = context.new_page()
-    opened.set_default_timeout(15_000)
-    yield opened
-    context.close()
 
 
 def _photo(store: Store, goal_set_id: int, size: int, *, width: int | None = None) -> None:

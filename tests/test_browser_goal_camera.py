@@ -8,29 +8,19 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import io
 import re
-from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import pytest
 from PIL import Image
-from playwright.sync_api import Browser, Page, expect
-from test_browser import _scene, _shot, browser  # noqa: F401 - the module's Chromium fixture
+from playwright.sync_api import Page, expect
+from test_browser import _scene, _shot
 from test_browser_daily_use import watch
 
 from contract.store import Store
 
 pytestmark = pytest.mark.browser
 STANDIN = "robot.standin:PusherStandIn-v0"
-
-
-@pytest.fixture
-def desktop(browser: Browser) -> Iterator[Page]:  # noqa: F811
-    context = browser.new_context(viewport={"width": 1360, "height": 900})
-    opened = context.new_page()
-    opened.set_default_timeout(20_000)
-    yield opened
-    context.close()
 
 
 def _box(page: Page, selector: str) -> dict:

@@ -4,25 +4,15 @@ person resets the scene and presses Ready (R, or the button), stops the robot (X
 on the answer queue and on the run page."""
 
 import re
-from collections.abc import Iterator
 
 import pytest
-from playwright.sync_api import Browser, Locator, Page, expect
-from test_browser import _scene, _shot, browser  # noqa: F401 - the module's Chromium fixture
+from playwright.sync_api import Locator, Page, expect
+from test_browser import _scene, _shot
 from test_browser_daily_use import watch
 
 from contract.store import RunStatus, Store
 
 pytestmark = pytest.mark.browser
-
-
-@pytest.fixture
-def desktop(browser: Browser) -> Iterator[Page]:  # noqa: F811
-    context = browser.new_context(viewport={"width": 1360, "height": 900})
-    opened = context.new_page()
-    opened.set_default_timeout(15_000)
-    yield opened
-    context.close()
 
 
 def _active_run(store: Store, name: str) -> int:
@@ -89,7 +79,7 @@ def test_the_queue_resets_the_scene_with_r_and_ready_and_stops_the_robot_with_x(
     # Stop robot (button), Resume, then X
     store.report_actor(run_id=run_id, state="moving")
     card.locator(".robot-stop").click()
-    expect(card.locator(".robot-stopped")).to_have_text("Stopped")
+    expect(card.locator(".robot-stopped")).to_be_visible()
     expect(card.locator(".robot-resume")).to_be_visible()
     expect(card.locator(".robot-stop")).to_be_hidden()
     assert store.robot_status(run_id=run_id).stop_requested is True
@@ -147,7 +137,7 @@ def test_the_run_page_shows_the_robot_and_keys_wait_while_typing(desktop: Page, 
     assert store.robot_status(run_id=run_id).reset_count == 1
 
     page.keyboard.press("x")
-    expect(card.locator(".robot-stopped")).to_have_text("Stopped")
+    expect(card.locator(".robot-stopped")).to_be_visible()
     assert store.robot_status(run_id=run_id).stop_requested is True
     card.locator(".robot-resume").click()
     expect(card.locator(".robot-stop")).to_be_visible()
