@@ -115,6 +115,7 @@ class _Actor:
         self.state = ActorState.STARTING
         self.frame: np.ndarray | None = None
         self.started = False  # the learner sent the step its run is at
+        self.exit_reason: str | None = None  # the learner's pipe closed, or it closed the actor
         self.done = threading.Event()
         self.control_thread = threading.Thread(target=self._control_loop, name="actor-controls", daemon=True)
 
@@ -140,24 +141,33 @@ class _Actor:
             self.done.wait(CONTROL_POLL_SECONDS)
 
     # ------------------------------------------------------------------ the watchdog
-    def _watchdog(self) -> str | None:
-        """Why the arm must be held safe now, or None."""
-        while self.connection.poll():
+    def _read_learner(self) -> None:
+        """Take the learner's messages (policies, keep-alives, start, close); a closed pipe means it is gone.
+        Called between the steps, so that loading a policy never delays one."""
+        while self.exit_reason is None and self.connection.poll():
             try:
                 message = self.connection.recv()
             except (EOFError, OSError):
-                return ActorState.LEARNER_GONE
+                self.exit_reason = ActorState.LEARNER_GONE
+                return
             kind = message[0]
             if kind == "policy":
                 self._load_policy(message[1])
             elif kind == "start":
                 self.step, self.started = int(message[1]), True
             elif kind == "close":
-                return ActorState.CLOSED
+                self.exit_reason = ActorState.CLOSED
             self.last_keepalive = time.monotonic()
+
+    def _watchdog(self) -> str | None:
+        """Why the arm must be held safe now, or None (a check of clocks and flags: it costs nothing)."""
+        if self.exit_reason is not None:
+            return self.exit_reason
         now, limit = time.monotonic(), float(self.config.watchdog_seconds)
         if now - self.last_keepalive > limit:
-            return ActorState.LEARNER_GONE
+            self._read_learner()  # (keep-alives may be waiting unread after a long reset)
+            if self.exit_reason is not None or time.monotonic() - self.last_keepalive > limit:
+                return self.exit_reason or ActorState.LEARNER_GONE
         if now - self.controls.last_answer > limit:
             return ActorState.DATABASE_GONE
         return None
@@ -182,6 +192,7 @@ class _Actor:
     def _loop(self) -> None:
         cfg = self.config
         while not self.started:  # the learner has read its checkpoint: the step the run is at
+            self._read_learner()
             if self._watchdog() is not None:
                 return
             time.sleep(0.01)
@@ -217,6 +228,7 @@ class _Actor:
                     return
                 action, length, next_tick, last_step = self._action(obs), 0, time.monotonic(), None
                 continue
+            self._read_learner()  # (a new policy is loaded here, between the steps)
             action = self._action(obs)
             next_tick += self.period
             delay = next_tick - time.monotonic()
@@ -250,6 +262,7 @@ class _Actor:
             self._wait_for_store()
         while True:
             self.wake.clear()
+            self._read_learner()
             reason = self._watchdog()
             if reason in EXIT_REASONS:
                 return "exit"
@@ -275,6 +288,7 @@ class _Actor:
                 self.store.request_robot_stop(run_id=self.settings.run_id)
                 self.controls.stop_requested, self.controls.last_answer = True, time.monotonic()
                 return
+            self._read_learner()
             if self._watchdog() in EXIT_REASONS:
                 return
             time.sleep(self.period)
@@ -289,6 +303,7 @@ class _Actor:
                 if asked_at is None:  # (while the store is unreachable the watchdog holds the arm)
                     with contextlib.suppress(Exception):
                         asked_at = self.store.request_scene_reset(run_id=run_id).reset_count
+                self._read_learner()
                 if self._hold_if_needed() == "exit":
                     return None
                 self._refresh_frame()
