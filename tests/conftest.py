@@ -26,6 +26,8 @@ from contract.store import Store
 if TYPE_CHECKING:
     from playwright.sync_api import Browser, Page
 
+    from contract.config import TrainConfig
+
 ROOT = Path(__file__).resolve().parent.parent
 # The tests' own env module, allowed for every learner the tests start (in-process or as a subprocess).
 os.environ.setdefault("RAQ_ENV_MODULES", "learner.testing_envs")
@@ -226,6 +228,28 @@ def make_live_server(database_url: str, tmp_path: Path) -> Iterator[Callable[...
 def live_server(make_live_server: Callable[..., LiveServer]) -> str:
     """A live server without a token; its base URL."""
     return make_live_server().url
+
+
+@pytest.fixture
+def dot_reach(tmp_path: Path) -> Iterator[tuple[Settings, Store, int]]:
+    """A learner's settings, a migrated SQLite store and a goal set of the DotReach test env."""
+    from learner.testing_envs import add_dot_goals  # noqa: PLC0415 - the learner's tests only
+
+    url = f"sqlite:///{tmp_path / 'raq.sqlite3'}"
+    upgrade(url)
+    store = Store(url)
+    settings = Settings(data_dir=tmp_path, database_url=url, stale_heartbeat_seconds=60.0)
+    yield settings, store, add_dot_goals(store)
+    store.dispose()
+
+
+def create_run(store: Store, goal_set_id: int | None, config: "TrainConfig") -> int:
+    """A queued run of `config` (its env, algorithm, seed and steps in the run's columns), as the API makes it."""
+    run = store.create_run(
+        env_id=config.env_id, algorithm=config.algorithm, config=config.to_dict(), seed=config.seed,
+        goal_set_id=goal_set_id, total_steps=config.total_steps,
+    )  # fmt: skip
+    return run.id
 
 
 # ---------------------------------------------------------------- the browser tests' Chromium and windows

@@ -8,18 +8,16 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import create_run
 
-from app.migrate import upgrade
 from contract.config import TrainConfig
 from contract.settings import Settings
 from contract.store import RunStatus, Store
 from learner.actor import ActorState
 from learner.checkpoint import checkpoint_path, load_checkpoint
-from learner.testing_envs import add_dot_goals
 from learner.worker import work
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -40,21 +38,8 @@ def real_time_config(**overrides: object) -> TrainConfig:
 
 
 @pytest.fixture
-def setup(tmp_path: Path) -> Iterator[tuple[Settings, Store, int]]:
-    url = f"sqlite:///{tmp_path / 'raq.sqlite3'}"
-    upgrade(url)
-    store = Store(url)
-    settings = Settings(data_dir=tmp_path, database_url=url, stale_heartbeat_seconds=60.0)
-    yield settings, store, add_dot_goals(store)
-    store.dispose()
-
-
-def create_run(store: Store, goal_set_id: int, config: TrainConfig) -> int:
-    run = store.create_run(
-        env_id=config.env_id, algorithm=config.algorithm, config=config.to_dict(), seed=config.seed,
-        goal_set_id=goal_set_id, total_steps=config.total_steps,
-    )  # fmt: skip
-    return run.id
+def setup(dot_reach: tuple[Settings, Store, int]) -> tuple[Settings, Store, int]:
+    return dot_reach
 
 
 def resetter_and_oracle(store: Store, run_id: int, done: threading.Event, presses: list[float]) -> None:

@@ -16,16 +16,15 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from conftest import create_run
 from PIL import Image
 
-from app.migrate import upgrade
 from contract.config import TrainConfig
 from contract.envs import decode_image, encode_png, model_image, scale_action
 from contract.settings import Settings
 from contract.store import RunStatus, Store
 from learner.checkpoint import checkpoint_path, load_checkpoint
 from learner.reward import RewardModel
-from learner.testing_envs import add_dot_goals
 from learner.train import Outcome, Trainer
 from learner.worker import work
 
@@ -52,21 +51,8 @@ def tiny_config(**overrides: object) -> TrainConfig:
 
 
 @pytest.fixture
-def setup(tmp_path: Path) -> tuple[Settings, Store, int]:
-    url = f"sqlite:///{tmp_path / 'raq.sqlite3'}"
-    upgrade(url)
-    store = Store(url)
-    settings = Settings(data_dir=tmp_path, database_url=url, stale_heartbeat_seconds=60.0)
-    yield settings, store, add_dot_goals(store)
-    store.dispose()
-
-
-def create_run(store: Store, goal_set_id: int | None, config: TrainConfig) -> int:
-    run = store.create_run(
-        env_id=config.env_id, algorithm=config.algorithm, config=config.to_dict(), seed=config.seed,
-        goal_set_id=goal_set_id, total_steps=config.total_steps,
-    )  # fmt: skip
-    return run.id
+def setup(dot_reach: tuple[Settings, Store, int]) -> tuple[Settings, Store, int]:
+    return dot_reach
 
 
 def oracle(store: Store, run_id: int, done: threading.Event) -> None:
