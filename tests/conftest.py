@@ -252,6 +252,21 @@ def create_run(store: Store, goal_set_id: int | None, config: "TrainConfig") -> 
     return run.id
 
 
+def learn_once_beside(settings: Settings, person: Callable[[threading.Event], None]) -> int:
+    """`raq learn --once` in this process while `person(done)` answers (queries, resets) on a thread of its own
+    until the learner is done; the learner's exit code."""
+    from learner.worker import work  # noqa: PLC0415 - the learner's tests only
+
+    done = threading.Event()
+    helper = threading.Thread(target=person, args=(done,), daemon=True)
+    helper.start()
+    try:
+        return work(settings, worker_name="w", once=True)
+    finally:
+        done.set()
+        helper.join()
+
+
 # ---------------------------------------------------------------- the browser tests' Chromium and windows
 CHROMIUM_ARGS = [
     "--no-sandbox",

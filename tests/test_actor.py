@@ -2,6 +2,7 @@
 a person's reset before each episode, Stop robot and Resume through the store; the watchdog holds the arm when
 the learner is killed."""
 
+import functools
 import os
 import signal
 import subprocess
@@ -11,7 +12,8 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import create_run
+from conftest import create_run, learn_once_beside
+from test_learner_run import tiny_config
 
 from contract.config import TrainConfig
 from contract.settings import Settings
@@ -21,20 +23,16 @@ from learner.checkpoint import checkpoint_path, load_checkpoint
 from learner.worker import work
 
 ROOT = Path(__file__).resolve().parent.parent
-ENV = "learner.testing_envs:DotReach-v0"
 HZ = 40.0
 
 
 def real_time_config(**overrides: object) -> TrainConfig:
+    """The learner tests' tiny run, in real time at HZ with a person's reset before every episode."""
     values: dict[str, object] = dict(
-        env_id=ENV, image_size=16, conv_filters=4, hidden_dim=32, batch_size=16, classifier_batch_size=8,
-        total_steps=200, episode_steps=25, initial_random_steps=50, epoch_steps=50, classifier_steps=2,
-        query_every=50, query_budget=3, eval_every=100, checkpoint_every=100, log_every=50, display_size=32,
-        rollout_size=16, replay_capacity=1000, heartbeat_seconds=0.2, query_candidates=4, control_hz=HZ,
-        reset_every_episode=True, updates_per_step=2, policy_sync_seconds=0.2,
+        total_steps=200, query_budget=3, control_hz=HZ, reset_every_episode=True, updates_per_step=2,
+        policy_sync_seconds=0.2,
     )  # fmt: skip
-    values.update(overrides)
-    return TrainConfig(**values)  # type: ignore[arg-type]
+    return tiny_config(**{**values, **overrides})
 
 
 @pytest.fixture
@@ -42,7 +40,7 @@ def setup(dot_reach: tuple[Settings, Store, int]) -> tuple[Settings, Store, int]
     return dot_reach
 
 
-def resetter_and_oracle(store: Store, run_id: int, done: threading.Event, presses: list[float]) -> None:
+def resetter_and_oracle(store: Store, run_id: int, done: threading.Event, *, presses: list[float]) -> None:
     """A person who presses Ready whenever the actor asks for a reset, and answers every query truthfully."""
     while not done.is_set():
         if store.robot_status(run_id=run_id).reset_needed:
@@ -59,14 +57,8 @@ def test_real_time_run_trains_beside_its_actor_with_a_reset_before_every_episode
     settings, store, goal_set_id = setup
     config = real_time_config()
     run_id = create_run(store, goal_set_id, config)
-    done, presses = threading.Event(), []
-    person = threading.Thread(target=resetter_and_oracle, args=(store, run_id, done, presses), daemon=True)
-    person.start()
-    try:
-        assert work(settings, worker_name="w", once=True) == 0
-    finally:
-        done.set()
-        person.join()
+    presses: list[float] = []
+    assert learn_once_beside(settings, functools.partial(resetter_and_oracle, store, run_id, presses=presses)) == 0
     run = store.get_run(run_id=run_id)
     assert run.status == RunStatus.FINISHED, run.status_reason
     assert run.step == config.total_steps

@@ -90,12 +90,7 @@ def test_the_queue_resets_the_scene_with_r_and_ready_and_stops_the_robot_with_x(
     expect(card.locator(".robot-stop")).to_be_visible()
     expect(card.locator(".robot-stopped")).to_be_hidden()
     assert store.robot_status(run_id=run_id).stop_requested is False
-    page.keyboard.press("x")
-    expect(card.locator(".robot-stopped")).to_be_visible()
-    assert store.robot_status(run_id=run_id).stop_requested is True
-    card.locator(".robot-resume").click()
-    expect(card.locator(".robot-stop")).to_be_visible()
-    assert store.robot_status(run_id=run_id).stop_requested is False
+    _stop_with_x_then_resume(page, card, store, run_id)
 
     # the run stops: its robot leaves the page
     store.set_run_status(run_id=run_id, status=RunStatus.STOPPED, worker="robot-learner")
@@ -136,12 +131,7 @@ def test_the_run_page_shows_the_robot_and_keys_wait_while_typing(desktop: Page, 
     expect(card.locator(".robot-reset")).to_be_hidden()
     assert store.robot_status(run_id=run_id).reset_count == 1
 
-    page.keyboard.press("x")
-    expect(card.locator(".robot-stopped")).to_be_visible()
-    assert store.robot_status(run_id=run_id).stop_requested is True
-    card.locator(".robot-resume").click()
-    expect(card.locator(".robot-stop")).to_be_visible()
-    assert store.robot_status(run_id=run_id).stop_requested is False
+    _stop_with_x_then_resume(page, card, store, run_id)
     assert problems == [], problems
 
     # a run without an actor shows no robot
@@ -150,3 +140,14 @@ def test_the_run_page_shows_the_robot_and_keys_wait_while_typing(desktop: Page, 
     expect(page.locator("#run-status")).to_contain_text("queued")
     page.wait_for_timeout(500)
     expect(page.locator("#robots")).to_be_hidden()
+
+
+def _stop_with_x_then_resume(page: Page, card: Locator, store: Store, run_id: int) -> None:
+    """X stops the robot (the store says so), Resume lets it act again."""
+    page.keyboard.press("x")
+    expect(card.locator(".robot-stopped")).to_be_visible()
+    assert store.robot_status(run_id=run_id).stop_requested is True
+    card.locator(".robot-resume").click()
+    expect(card.locator(".robot-stop")).to_be_visible()
+    expect(card.locator(".robot-stopped")).to_be_hidden()
+    assert store.robot_status(run_id=run_id).stop_requested is False

@@ -1,6 +1,7 @@
 """Runs end to end through a real temporary SQLite store: answers arriving while training, every algorithm,
 a bring-your-own env without success, answers reaching the example sets, SIGTERM re-queueing and SIGKILL resume."""
 
+import functools
 import json
 import os
 import re
@@ -16,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from conftest import create_run
+from conftest import create_run, learn_once_beside
 from PIL import Image
 
 from contract.config import TrainConfig
@@ -67,14 +68,7 @@ def test_vice_raq_run_end_to_end_with_answers_arriving(setup: tuple[Settings, St
     settings, store, goal_set_id = setup
     config = tiny_config(algorithm="vice_raq")
     run_id = create_run(store, goal_set_id, config)
-    done = threading.Event()
-    answering = threading.Thread(target=oracle, args=(store, run_id, done), daemon=True)
-    answering.start()
-    try:
-        assert work(settings, worker_name="w1", once=True) == 0
-    finally:
-        done.set()
-        answering.join()
+    assert learn_once_beside(settings, functools.partial(oracle, store, run_id)) == 0
     run = store.get_run(run_id=run_id)
     assert run.status == RunStatus.FINISHED, run.status_reason
     assert run.step == config.total_steps
