@@ -437,7 +437,9 @@ class ActorProcess:
                 return
 
     def close(self) -> None:
-        """Tell the actor to hold the arm and exit; wait for it (a few seconds), else end it."""
+        """Tell the actor to hold the arm and exit; wait for it (a few seconds), else end it. Once only."""
+        if self.closed.is_set():
+            return
         with contextlib.suppress(BrokenPipeError, OSError):
             self._send(("close",))
         self.closed.set()

@@ -249,13 +249,12 @@ class Trainer:
         after REAL_TIME_SLICE seconds without a step (a person resetting, a stopped robot), so that the loop sees
         its stop and interrupt meanwhile."""
         assert self.actor is not None
-        episode, cfg, counters = episodes[0], self.config, self.counters
+        episode, counters = episodes[0], self.counters
         deadline = time.monotonic() + REAL_TIME_SLICE
         while True:
             self._send_policy()
             message = self.actor.next_message(0.0)  # the actor's steps first: the replay never lags the robot
-            due = max(0, counters.step - cfg.initial_random_steps + 1) * cfg.updates_per_step
-            if message is None and counters.total_updates < due:
+            if message is None and counters.total_updates < self._updates_due_by(counters.step):
                 self._sac_updates(1)
                 continue
             if message is None:
@@ -290,8 +289,12 @@ class Trainer:
 
     def _updates_due(self, steps: int) -> int:
         """SAC updates of the next `steps` env steps: updates_per_step for each step from the warm-up's end."""
-        first, start = self.counters.step + 1, self.config.initial_random_steps
-        return sum(step >= start for step in range(first, first + steps)) * self.config.updates_per_step
+        step = self.counters.step
+        return self._updates_due_by(step + steps) - self._updates_due_by(step)
+
+    def _updates_due_by(self, step: int) -> int:
+        """SAC updates due in all by env step `step`: updates_per_step for each step from the warm-up's end on."""
+        return max(0, step - self.config.initial_random_steps + 1) * self.config.updates_per_step
 
     def _after_step(self) -> None:
         cfg, step = self.config, self.counters.step
@@ -367,11 +370,9 @@ class Trainer:
             self._evaluate()
 
     def close(self) -> None:
-        if self.actor is not None:
-            self.actor.close()
         if self.update_thread is not None:
             self.update_thread.shutdown()
-        for env in (*(episode.env for episode in self.episodes if episode.env is not self.actor), *self.eval_envs):
+        for env in (*(episode.env for episode in self.episodes), *self.eval_envs):
             with contextlib.suppress(Exception):  # closing must not hide the error that ended training
                 env.close()
 
