@@ -137,6 +137,8 @@ class NetworkConfig:
     """One conv encoder for actor and critics, trained by the critic (DrQ / SAC-AE); False: one each."""
     feature_dim: int = 50
     """Shared encoder only: Linear + LayerNorm + tanh of the conv features to this size (SAC-AE, DrQ); 0: none."""
+    critic_layer_norm: bool = False
+    """LayerNorm (no affine) after each hidden layer of the Q MLPs, before the ReLU (RLPD's critics)."""
     augmentation: Literal["none", "random_shift"] = "random_shift"
     """Image augmentation for SAC updates: DrQ's random shift by up to 4 pixels (scaled to image size)."""
 

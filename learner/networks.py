@@ -195,15 +195,18 @@ class EnsembleLinear(nn.Module):
 class Critic(nn.Module):
     """Twin Q-functions; with their own encoders (one each) they take images, without them features.
 
-    The two Q MLPs (two ReLU hidden layers, a linear head) are independent networks stored as one ensemble of
-    2, so each layer of both runs as one batched matmul: the same maths as two nn.Sequential MLPs with half
-    the operator calls, which is what a small MLP at batch 256 costs on a CPU.
+    The two Q MLPs (two ReLU hidden layers, with `layer_norm` a LayerNorm before each ReLU, then a linear head) are
+    independent networks stored as one ensemble of 2, so each layer of both runs as one batched matmul: the same
+    maths as two nn.Sequential MLPs with half the operator calls, which is what a small MLP at batch 256 costs on a
+    CPU.
     """
 
     def __init__(
-        self, feature_dim: int, action_dim: int, hidden_dim: int, encoders: tuple[ConvEncoder, ConvEncoder] | None
-    ) -> None:
+        self, feature_dim: int, action_dim: int, hidden_dim: int, encoders: tuple[ConvEncoder, ConvEncoder] | None,
+        layer_norm: bool = False,
+    ) -> None:  # fmt: skip
         super().__init__()
+        self.layer_norm = layer_norm
         self.encoders = nn.ModuleList(encoders) if encoders is not None else None
         self.layers = nn.ModuleList([
             EnsembleLinear(2, feature_dim + action_dim, hidden_dim),
@@ -219,8 +222,11 @@ class Critic(nn.Module):
             features = torch.stack([self.encoders[0](inputs), self.encoders[1](inputs)])
         action = action.to(features.dtype).unsqueeze(0).expand(2, -1, -1)
         x = torch.cat([features, action], dim=-1)
-        x = F.relu(self.layers[0](x))
-        x = F.relu(self.layers[1](x))
+        for layer in self.layers[:2]:
+            x = layer(x)
+            if self.layer_norm:  # each member's hidden units normalised alone (the next layer holds the affine)
+                x = F.layer_norm(x, x.shape[-1:])
+            x = F.relu(x)
         q = self.layers[2](x).float().squeeze(-1)
         return q[0], q[1]
 

@@ -59,13 +59,15 @@ class SACAgent:
             self.encoder: SharedEncoder | None = SharedEncoder(size, filters, config.encoder, config.feature_dim)
             feature_dim = self.encoder.output_dim
             self.actor = Actor(feature_dim, action_dim, hidden, encoder=None)
-            self.critic = Critic(feature_dim, action_dim, hidden, encoders=None)
+            self.critic = Critic(feature_dim, action_dim, hidden, encoders=None, layer_norm=config.critic_layer_norm)
         else:
             self.encoder = None
             feature_dim = ConvEncoder(size, filters, config.encoder).output_dim
             self.actor = Actor(feature_dim, action_dim, hidden, encoder=ConvEncoder(size, filters, config.encoder))
             encoders = (ConvEncoder(size, filters, config.encoder), ConvEncoder(size, filters, config.encoder))
-            self.critic = Critic(feature_dim, action_dim, hidden, encoders=encoders)
+            self.critic = Critic(
+                feature_dim, action_dim, hidden, encoders=encoders, layer_norm=config.critic_layer_norm
+            )
         for module in self.modules().values():
             module.to(self.device, memory_format=torch.channels_last)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
