@@ -279,4 +279,30 @@ class RobotControl(Base):
     actor_seen_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
     frame_png: Mapped[bytes | None] = deferred(mapped_column(LargeBinary))
     frame_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    # Evaluate now: episodes a person asked for that the actor has not begun, and how many times they asked
+    evaluation_pending: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    evaluation_round: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    # the link to an actor on another host: the learner's keep-alive, its newest policy in the checkpoint store,
+    # the step its run starts at (None: not open), its close; the actor's action and observation spaces
+    learner_seen_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    policy_version: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    start_step: Mapped[int | None] = mapped_column(BigInteger)
+    learner_closed: Mapped[bool] = mapped_column(Boolean, default=False, server_default=sa_false())
+    actor_spaces: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class ActorMessage(Base):
+    """A remote actor's message to its learner (a step, an episode's first observation, a state), in id order;
+    the learner deletes those it has taken."""
+
+    __tablename__ = "actor_messages"
+    __table_args__ = (Index("ix_actor_messages_run_id_id", "run_id", "id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"))
+    kind: Mapped[str] = mapped_column(String(20))
+    payload: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    observation_png: Mapped[bytes | None] = mapped_column(LargeBinary)
+    display_png: Mapped[bytes | None] = mapped_column(LargeBinary)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
