@@ -7,7 +7,7 @@ from typing import Annotated, Any
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from contract.store import INT32_MAX, Run, RunPhase, RunStatus, seconds_since
-from contract.store.robots import ROBOT_LIVE_SECONDS
+from contract.store.robots import EVALUATION_EPISODES_MAX, ROBOT_LIVE_SECONDS
 
 
 def _storable_text(value: str) -> str:
@@ -480,6 +480,8 @@ class RobotStatusOut(RowOut):  # model_validate(row_with(robot_status, run_name=
     live: bool = Field(description=f"The actor reported within the last {ROBOT_LIVE_SECONDS:g} s.")
     frame_at: datetime | None = Field(description="When the newest camera frame came.")
     camera_url: str | None = Field(description="The newest camera frame (PNG; the query changes with each frame).")
+    evaluation_pending: int = Field(description="Episodes of Evaluate now that the actor has not begun.")
+    evaluation_round: int = Field(description="How many times Evaluate now was pressed (the newest request's round).")
 
     @classmethod
     def derived(cls, status: Any) -> dict[str, Any]:
@@ -492,3 +494,12 @@ class RobotStatusOut(RowOut):  # model_validate(row_with(robot_status, run_name=
             "live": age is not None and age <= ROBOT_LIVE_SECONDS,
             "camera_url": camera_url,
         }
+
+
+class EvaluateIn(InputModel):
+    """Evaluate now: episodes for the actor to run with the policy's mean action."""
+
+    episodes: int = Field(
+        ge=1, le=EVALUATION_EPISODES_MAX,
+        description="How many episodes; the last frame of each becomes a question on the answer queue.",
+    )  # fmt: skip

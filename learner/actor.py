@@ -80,11 +80,16 @@ class ActorSettings:
 
 @dataclass
 class Controls:
-    """The person's controls as the control thread last read them, and how the store answered."""
+    """The person's controls as the control thread last read them, how the store answered, and the Evaluate now
+    round of the episode under way."""
 
     stop_requested: bool = False
     reset_count: int = 0
     """How many times a person pressed Ready."""
+    evaluation_pending: int = 0
+    """Episodes of Evaluate now not begun yet (the actor takes them one by one from the store)."""
+    evaluation_round: int | None = None
+    """The Evaluate now round of the episode under way (None: a training episode)."""
     last_answer: float = field(default_factory=time.monotonic)
     """When the store last answered (monotonic)."""
 
@@ -135,6 +140,7 @@ class _Actor:
             else:
                 controls = self.controls
                 controls.stop_requested, controls.reset_count = status.stop_requested, status.reset_count
+                controls.evaluation_pending = status.evaluation_pending
                 controls.last_answer = time.monotonic()
                 if status.stop_requested:
                     self.wake.set()
@@ -221,7 +227,7 @@ class _Actor:
             display = display_image(self.env, cfg.display_size, obs)
             self.frame = self._camera_view(display)
             self.outbox.put(("step", action, obs, float(reward), bool(terminated), bool(truncated), info, display,
-                             period))  # fmt: skip
+                             period, self.controls.evaluation_round))  # fmt: skip
             if terminated or truncated or length >= cfg.episode_steps:
                 obs = self._begin_episode()
                 if obs is None:
@@ -238,7 +244,10 @@ class _Actor:
                 self.wake.wait(delay)
 
     def _action(self, obs: np.ndarray) -> np.ndarray:
-        """Uniformly random before the warm-up's end or the first weights; then the policy's sample."""
+        """In an evaluation episode the policy's mean action; else uniformly random before the warm-up's end or the
+        first weights, then the policy's sample."""
+        if self.controls.evaluation_round is not None:
+            return self.agent.act_batch(obs[None], deterministic=True)[0]
         if self.step < self.config.initial_random_steps or not self.has_policy:
             return self.rng.uniform(-1.0, 1.0, self.action_space.shape).astype(np.float32)
         return self.agent.act_batch(obs[None], deterministic=False, generator=self.generator)[0]
@@ -294,7 +303,9 @@ class _Actor:
             time.sleep(self.period)
 
     def _begin_episode(self) -> np.ndarray | None:
-        """Reset the scene (a person first, when needed) and send the first observation; None: exit."""
+        """Reset the scene (a person first, when needed) and send the first observation; None: exit. While Evaluate
+        now has episodes pending, this one is taken from the store: an evaluation episode (its steps carry the
+        round) acting with the policy's mean action."""
         cfg, run_id = self.config, self.settings.run_id
         if self.settings.person_reset or getattr(self.env.unwrapped, "needs_person_reset", False):
             self._set_state(ActorState.WAITING_FOR_RESET)
@@ -309,6 +320,10 @@ class _Actor:
                 self._refresh_frame()
                 self.wake.wait(self.period)
         raw, info = self.env.reset()
+        self.controls.evaluation_round = None
+        if self.controls.evaluation_pending > 0:  # (the store unreachable: a training episode, the arm held)
+            with contextlib.suppress(Exception):
+                self.controls.evaluation_round = self.store.take_evaluation_episode(run_id=run_id)
         obs = model_image(raw, cfg.image_size, cfg.env_id)
         display = display_image(self.env, cfg.display_size, obs)
         self.frame = self._camera_view(display)
@@ -357,6 +372,8 @@ class ActorStep:
     display: np.ndarray | None = None
     period: float | None = None
     state: str | None = None
+    evaluation_round: int | None = None
+    """A step of an evaluation episode: its Evaluate now round (None: a training step)."""
 
 
 class ActorProcess:
@@ -407,9 +424,12 @@ class ActorProcess:
         if kind == "error":
             raise ActorError(f"the actor failed:\n{message[1]}")
         if kind == "step":
-            _, action, obs, reward, terminated, truncated, info, display, period = message
+            _, action, obs, reward, terminated, truncated, info, display, period, evaluation_round = message
             self.display = display
-            return ActorStep(kind, action, obs, reward, terminated, truncated, info, display, period)
+            return ActorStep(
+                kind, action, obs, reward, terminated, truncated, info, display, period,
+                evaluation_round=evaluation_round,
+            )  # fmt: skip
         if kind == "reset":
             _, obs, info, display = message
             self.display = display

@@ -3,7 +3,8 @@ selecting the one to ask, posting it, reading the answers, and the query budget.
 
 Answers never block training: they are read at least every `log_every` steps and before every classifier epoch.
 A "yes" joins f_psi's positives; a "no" joins its negatives only for methods whose negatives are a pool (raq):
-for VICE-RAQ the observation is already a replay negative.
+for VICE-RAQ the observation is already a replay negative. A robot run's evaluation questions
+(learner/robot_evaluation.py) are answered and read like the others but asked outside the budget.
 """
 
 from collections.abc import Callable
@@ -15,9 +16,10 @@ import numpy as np
 from contract.algorithms import ALGORITHM_SPECS
 from contract.config import TrainConfig
 from contract.envs import decode_image, encode_png, jsonable
-from contract.store import QueryStatus, Store
+from contract.store import AnsweredQuery, QueryStatus, Store
 from learner.queries import QuerySelector, digest
 from learner.reward import RewardModel
+from learner.robot_evaluation import EVALUATION_STRATEGY
 from learner.run_control import Counters, RunControl
 
 
@@ -37,14 +39,16 @@ class QueryChannel:
 
     def __init__(
         self, config: TrainConfig, *, store: Store, run_id: int, reward_model: RewardModel, counters: Counters,
-        control: RunControl,
+        control: RunControl, on_answers: Callable[[list[AnsweredQuery]], None] | None = None,
     ) -> None:  # fmt: skip
+        """`on_answers`: told of every batch of answers read (a robot run's evaluation rounds count theirs)."""
         self.config, self.store, self.run_id = config, store, run_id
         self.reward_model, self.counters, self.control = reward_model, counters, control
+        self.on_answers = on_answers
         self.selector = QuerySelector(config.query_strategy, config.query_candidates)
         # a "no" joins the negatives: raq's pool, or vice_raq's answered negatives when it samples from them
         self.keep_no_answers = ALGORITHM_SPECS[config.algorithm].negatives == "pool" or config.no_answer_share > 0
-        self.asked = 0
+        self.asked = 0  # (evaluation questions are not asked against the budget)
         self.pending: list[Pending] = []  # observations waiting to be scored in one batch
         # every answered query's image and answer, by query id: what the page shows as the classifier's
         # agreement with the person (rebuilt from the store on resume)
@@ -139,17 +143,21 @@ class QueryChannel:
                 f"answers received: {yes} yes, {no} no; the classifier now has "
                 f"{len(model.goals) + len(model.answered_positives)} positives"
             )
+            if self.on_answers is not None:
+                self.on_answers(answers)
 
     def sync(self) -> None:
-        """On (re)start: queries this run already asked (also after the last checkpoint) count against the budget
-        and are never asked again; those answered and used are rebuilt for the agreement metrics."""
+        """On (re)start: queries this run already asked (also after the last checkpoint) count against the budget,
+        evaluation questions aside, and are never asked again; those answered and used are rebuilt for the
+        agreement metrics."""
         queries = self.store.list_queries(run_id=self.run_id, limit=1_000_000)
-        self.asked = len(queries)
+        self.asked = sum(query.strategy != EVALUATION_STRATEGY for query in queries)
         keys = set()
         for query in queries:
             self.control.tick()
             image = decode_image(self.store.query_image(query_id=query.id, resolution="model"), self.config.image_size)
-            keys.add(digest(image))
+            if query.strategy != EVALUATION_STRATEGY:
+                keys.add(digest(image))
             if query.status == QueryStatus.ANSWERED and query.used_at is not None:
                 self.answered[query.id] = (image, bool(query.answer))
         self.selector.mark_asked(keys)

@@ -64,6 +64,7 @@ from learner.networks import resolve_precision
 from learner.query_channel import QueryChannel
 from learner.replay import ReplayBuffer
 from learner.reward import RewardModel
+from learner.robot_evaluation import RobotEvaluation
 from learner.run_control import Counters, Outcome, RunControl
 from learner.sac import SACAgent
 from learner.updates import HostUpdates, make_updates
@@ -140,11 +141,18 @@ class Trainer:
         self.agent = SACAgent(config, self.action_dim)
         self.replay = ReplayBuffer(config.replay_capacity, (size, size, 3), self.action_dim, envs=config.num_envs)
         self.reward_model = RewardModel(config, self.rng) if self.spec.classifier else None
+        asks = self.spec.queries and self.reward_model is not None
+        # real time: a person's Evaluate now episodes, their last frames asked about outside the query budget
+        self.robot_evaluation = None if self.actor is None else RobotEvaluation(
+            config, store=store, run_id=run_id, reward_model=self.reward_model, counters=self.counters,
+            control=self.control, reads_answers=not asks,
+        )  # fmt: skip
         self.queries: QueryChannel | None = None
-        if self.spec.queries and self.reward_model is not None:
+        if asks and self.reward_model is not None:
             self.queries = QueryChannel(
                 config, store=store, run_id=run_id, reward_model=self.reward_model, counters=self.counters,
                 control=self.control,
+                on_answers=None if self.robot_evaluation is None else self.robot_evaluation.answers_read,
             )  # fmt: skip
         self.updates = make_updates(
             config, agent=self.agent, replay=self.replay, reward_model=self.reward_model, spec=self.spec, rng=self.rng
@@ -247,8 +255,8 @@ class Trainer:
         each step taken; fewer when the updates are slower than the robot); the policy sent every
         policy_sync_seconds. An episode's first observation is taken on the way. Nothing
         after REAL_TIME_SLICE seconds without a step (a person resetting, a stopped robot), so that the loop sees
-        its stop and interrupt meanwhile."""
-        assert self.actor is not None
+        its stop and interrupt meanwhile. Evaluate now's episodes are taken on the way too (`RobotEvaluation`)."""
+        assert self.actor is not None and self.robot_evaluation is not None
         episode, counters = episodes[0], self.counters
         deadline = time.monotonic() + REAL_TIME_SLICE
         while True:
@@ -265,12 +273,14 @@ class Trainer:
                     return []
             elif message.kind == "reset":
                 self._start_episode(episode, message.observation, message.info)
+                self.robot_evaluation.episode_began()
             elif message.kind == "state":
                 self.control.event(f"robot: {message.state}")
             elif episode.length >= 0:  # a step of the episode under way
                 if message.period is not None:
                     self.actor_periods.append(message.period)
                 outcome = (message.observation, message.reward, message.terminated, message.truncated, message.info)
+                self.robot_evaluation.take_step(message, env_step=counters.step + 1)
                 return [(episode, np.asarray(message.action, dtype=np.float32), outcome)]
 
     def _send_policy(self) -> None:

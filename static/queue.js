@@ -1,10 +1,12 @@
 // Answer queue: one query at a time; Y / N / S / U; the next one arrives by polling /api/queries/next. Above the
 // questions, the robots at work (GET /api/robots): R presses Ready once the scene is reset, X stops every robot.
-// RobotCards is shared with the run page (run.js), which shows its run's robot the same way.
+// RobotCards is shared with the run page (run.js), which shows its run's robot the same way, with Evaluate now.
+// A question about an evaluation episode's last frame (strategy "evaluation") carries a tag saying so.
 import { api, el, fmtNumber, fmtPercent, poll, setPendingBadge, setUpNotifyButton } from "/static/app.js";
 
 const ROBOT_POLL_MS = 700; // while a robot is shown: its camera and a waiting reset within a second
 const ROBOT_IDLE_POLL_MS = 3000; // while none is
+const EVALUATION_EPISODES = { default: 5, min: 1, max: 20 }; // Evaluate now (POST /api/runs/{id}/robot/evaluate)
 
 /** Whether a key press belongs to a field being typed in (then the page's keys do nothing). */
 export function typing(event) {
@@ -15,12 +17,15 @@ export function typing(event) {
 }
 
 /** One card per robot at work (a RobotStatusOut each) in `container`: the live camera, what the actor says,
- * Stop robot / Resume, and when the actor waits for a scene reset, Ready. Cards are updated in place. */
+ * Stop robot / Resume, and when the actor waits for a scene reset, Ready; while Evaluate now has episodes
+ * pending, how many. With `evaluate` (the run page) also Evaluate now and its episodes. Cards are updated in
+ * place. */
 export class RobotCards {
-  constructor(container, { say = () => {}, onChange = () => {} } = {}) {
+  constructor(container, { say = () => {}, onChange = () => {}, evaluate = false } = {}) {
     this.container = container;
     this.say = say;
     this.onChange = onChange;
+    this.evaluate = evaluate;
     this.cards = new Map(); // run id -> the card's elements
     this.robots = [];
     this.busy = new Set(); // run ids with a request in flight
@@ -59,8 +64,22 @@ export class RobotCards {
       ready: el("button", { class: "btn primary robot-ready hidden", type: "button" }, "Ready ", el("kbd", {}, "R")),
       stop: el("button", { class: "btn danger robot-stop", type: "button" }, "Stop robot ", el("kbd", {}, "X")),
       resume: el("button", { class: "btn robot-resume hidden", type: "button" }, "Resume"),
+      evaluating: el("p", { class: "robot-evaluating small hidden" }),
+      episodes: el("input", {
+        class: "robot-episodes", type: "number", min: EVALUATION_EPISODES.min, max: EVALUATION_EPISODES.max,
+        value: EVALUATION_EPISODES.default, required: true, "aria-label": "episodes to evaluate",
+      }),
+      evaluate: el("button", { class: "btn robot-evaluate", type: "submit",
+        title: "Episodes with the policy's mean action; the last frame of each is asked on the answer queue" },
+        "Evaluate now"),
       cameraUrl: null,
     };
+    const evaluateForm = el("form", { class: "inline-form robot-evaluate-form" }, card.evaluate,
+      el("label", { class: "small" }, card.episodes, " episodes"));
+    evaluateForm.addEventListener("submit", (event) => {
+      event.preventDefault();
+      this.act(runId, "evaluate", { episodes: Number(card.episodes.value) });
+    });
     card.camera.addEventListener("load", () => {
       card.camera.classList.remove("hidden");
       card.noCamera.classList.add("hidden");
@@ -76,8 +95,9 @@ export class RobotCards {
       el("div", { class: "robot-view" }, card.camera, card.noCamera),
       el("div", { class: "robot-body" },
         el("div", { class: "robot-head" }, card.title, card.stopped),
-        card.reset, card.state,
-        el("div", { class: "robot-buttons" }, card.ready, card.stop, card.resume)),
+        card.reset, card.state, card.evaluating,
+        el("div", { class: "robot-buttons" }, card.ready, card.stop, card.resume,
+          this.evaluate ? evaluateForm : null)),
     );
     this.cards.set(runId, card);
     return card;
@@ -97,6 +117,11 @@ export class RobotCards {
     card.resume.classList.toggle("hidden", !robot.stop_requested);
     const busy = this.busy.has(runId);
     for (const button of [card.ready, card.stop, card.resume]) button.disabled = busy;
+    const pending = robot.evaluation_pending;
+    card.evaluating.classList.toggle("hidden", !pending);
+    card.evaluating.textContent = pending
+      ? `Evaluating: ${pending} episode${pending === 1 ? "" : "s"} left (round ${robot.evaluation_round})` : "";
+    card.evaluate.disabled = busy || pending > 0; // (one round at a time)
     const said = robot.actor_state ? `Actor: ${robot.actor_state}` : "Actor: –";
     const age = robot.actor_age_seconds;
     card.state.textContent = robot.live ? said
@@ -123,21 +148,24 @@ export class RobotCards {
     for (const robot of this.robots) if (!robot.stop_requested) this.act(robot.run_id, "stop");
   }
 
-  async act(runId, action) {
+  async act(runId, action, body = undefined) {
     if (this.busy.has(runId)) return;
     this.busy.add(runId);
     this.refreshCard(runId);
     let robot = null;
     try {
-      robot = await api("POST", `/api/runs/${runId}/robot/${action}`);
+      robot = await api("POST", `/api/runs/${runId}/robot/${action}`, body);
       const done = {
         ready: `Run #${runId}: Ready. The robot starts its episode.`,
         stop: `Run #${runId}: robot stopped. It holds still until you press Resume.`,
         resume: `Run #${runId}: robot resumed.`,
+        evaluate: `Run #${runId}: evaluating ${body && body.episodes} episodes with the policy's mean action; `
+          + "the last frame of each is asked on the answer queue.",
       };
       this.say(action === "stop" ? "warn" : "ok", done[action]);
     } catch (error) {
-      const text = error.status === 409 ? "no reset is waiting (Ready was pressed already?)" : error.message;
+      const refused = action === "evaluate" ? error.message : "no reset is waiting (Ready was pressed already?)";
+      const text = error.status === 409 ? refused : error.message;
       this.say("error", `Run #${runId}: ${text}`);
     } finally {
       this.busy.delete(runId);
@@ -250,6 +278,11 @@ function render(item) {
   renderGoals(item);
   if (queue.current && queue.current.id === query.id) return;
   queue.current = query;
+  const tag = document.getElementById("query-tag");
+  const evaluation = query.strategy === "evaluation";
+  tag.classList.toggle("hidden", !evaluation);
+  tag.textContent = evaluation
+    ? `Last frame of evaluation episode ${query.info.episode} (round ${query.info.evaluation_round})` : "";
   document.getElementById("query-display").src = query.display_image_url;
   document.getElementById("query-model").src = query.model_image_url;
   const modelImage = document.getElementById("query-model");

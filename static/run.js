@@ -1,5 +1,6 @@
 // Run page: status and stats (every 2 s), curves from /api/runs/{id}/metrics?since_step=, rollout, queries, events;
-// for an active run whose actor drives a robot, the robot's card (camera, Stop robot / Resume, Ready: keys X, R).
+// for an active run whose actor drives a robot, the robot's card (camera, Stop robot / Resume, Ready: keys X, R;
+// Evaluate now).
 import {
   api, el, fmtAge, fmtDuration, fmtNumber, fmtPercent, fmtSteps, fmtTime, isActive, poll, statusPill, toast,
 } from "/static/app.js";
@@ -28,7 +29,7 @@ const CHARTS = [
   { id: "chart-alpha", title: "Entropy temperature α", series: [["alpha/value", "α"]] },
 ];
 
-const page = { run: null, charts: [], lastStep: -1, rolloutId: null, lastEventId: 0 };
+const page = { run: null, charts: [], lastStep: -1, rolloutId: null, lastEventId: 0, robotShown: false };
 
 function renderRun(run) {
   page.run = run;
@@ -150,6 +151,10 @@ async function refreshMetrics() {
   const data = await api("GET", `/api/runs/${page.run.id}/metrics?since_step=${since}`);
   page.lastStep = Math.max(page.lastStep, data.last_step);
   for (const chart of page.charts) chart.add(data.series);
+  if (page.robotShown) { // a robot's Evaluate now round is recorded at the step it began, when its answers come
+    const rates = await api("GET", `/api/runs/${page.run.id}/metrics?names=eval/success_rate`);
+    for (const chart of page.charts) chart.add(rates.series);
+  }
   showReturnCharts();
 }
 
@@ -257,7 +262,11 @@ document.addEventListener("DOMContentLoaded", () => {
   document.getElementById("delete-run").addEventListener("click", deleteRun);
   const robots = new RobotCards(document.getElementById("robot-cards"), {
     say: (kind, text) => toast(text, kind === "error" ? "error" : "info", kind === "error" ? 6000 : 3500),
-    onChange: (list) => document.getElementById("robots").classList.toggle("hidden", list.length === 0),
+    onChange: (list) => {
+      page.robotShown = list.length > 0;
+      document.getElementById("robots").classList.toggle("hidden", list.length === 0);
+    },
+    evaluate: true,
   });
   robots.start(loadRobot);
   document.addEventListener("keydown", (event) => robots.key(event));

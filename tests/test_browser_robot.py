@@ -151,3 +151,52 @@ def _stop_with_x_then_resume(page: Page, card: Locator, store: Store, run_id: in
     expect(card.locator(".robot-stop")).to_be_visible()
     expect(card.locator(".robot-stopped")).to_be_hidden()
     assert store.robot_status(run_id=run_id).stop_requested is False
+
+
+def test_evaluate_now_on_the_run_page_and_its_questions_on_the_queue(
+    desktop: Page, live_server: str, store: Store
+) -> None:
+    page = desktop
+    problems = watch(page, live_server)
+    run_id = _active_run(store, "arm")
+    store.report_actor(run_id=run_id, state="acting", frame_png=_frame((40, 70)))
+    page.goto(f"{live_server}/runs/{run_id}")
+
+    card = page.locator(f'#robots .robot-card[data-run-id="{run_id}"]')
+    episodes, evaluate = card.locator("input.robot-episodes"), card.locator("button.robot-evaluate")
+    expect(evaluate).to_have_text("Evaluate now")
+    expect(episodes).to_have_value("5")
+    expect(card.locator(".robot-evaluating")).to_be_hidden()
+    episodes.fill("3")
+    page.keyboard.press("r")  # typing in the field: the robot's keys do nothing
+    evaluate.click()
+    expect(card.locator(".robot-evaluating")).to_have_text("Evaluating: 3 episodes left (round 1)")
+    expect(evaluate).to_be_disabled()  # one round at a time
+    status = store.robot_status(run_id=run_id)
+    assert (status.evaluation_pending, status.evaluation_round, status.reset_count) == (3, 1, 0)
+    _shot(page, "robot-04-run-page-evaluating")
+    for left in (2, 1):  # the actor begins the episodes one by one
+        assert store.take_evaluation_episode(run_id=run_id) == 1
+        expect(card.locator(".robot-evaluating")).to_have_text(
+            f"Evaluating: {left} episode{'s' if left > 1 else ''} left (round 1)"
+        )
+    store.take_evaluation_episode(run_id=run_id)
+    expect(card.locator(".robot-evaluating")).to_be_hidden()
+    expect(evaluate).to_be_enabled()
+
+    # the last frame of an evaluation episode on the answer queue, with its tag; a training question has none
+    store.post_query(
+        run_id=run_id, env_step=180, model_png=_frame((50, 50)), display_png=_frame((50, 50)), score=0.3,
+        strategy="evaluation", info={"evaluation_round": 1, "episode": 2},
+    )  # fmt: skip
+    store.post_query(run_id=run_id, env_step=200, model_png=_frame((20, 20)), display_png=_frame((20, 20)), score=1.0)
+    page.goto(f"{live_server}/queue?run={run_id}")
+    tag = page.locator("#query-tag")
+    expect(tag).to_have_text("Last frame of evaluation episode 2 (round 1)")
+    expect(page.locator("#query-facts")).to_contain_text("evaluation")
+    expect(page.locator("#robots .robot-evaluate")).to_have_count(0)  # Evaluate now is the run page's
+    _shot(page, "robot-05-queue-evaluation-question")
+    page.keyboard.press("y")
+    expect(tag).to_be_hidden()
+    expect(page.locator("#query-facts")).to_contain_text("highest score since the last query")
+    assert problems == [], problems

@@ -1,7 +1,8 @@
-"""A run's robot controls: a person's Stop robot / Resume and Ready, the actor's call for a scene reset, its
-reports and camera frames, in the store (a real SQLite file) and through the REST API."""
+"""A run's robot controls: a person's Stop robot / Resume, Ready and Evaluate now, the actor's call for a scene
+reset, its reports and camera frames, in the store (a real SQLite file) and through the REST API."""
 
 import io
+import threading
 from collections.abc import Callable
 from datetime import timedelta
 
@@ -14,6 +15,7 @@ from sqlalchemy import select, update
 
 from contract.store import Conflict, InvalidInput, NotFound, RobotStatus, RunStatus, Store
 from contract.store.models import Base, RobotControl, utcnow
+from contract.store.robots import EVALUATION_EPISODES_MAX
 
 
 def _png(color: tuple[int, int, int] = (40, 70, 200)) -> bytes:
@@ -40,9 +42,10 @@ def test_a_run_nobody_touched_has_the_defaults_and_no_row(store: Store) -> None:
     run_id = _run(store)
     assert store.robot_status(run_id=run_id) == RobotStatus(
         run_id=run_id, stop_requested=False, reset_needed=False, reset_count=0, actor_state=None,
-        actor_seen_at=None, frame_at=None,
+        actor_seen_at=None, frame_at=None, evaluation_pending=0, evaluation_round=0,
     )  # fmt: skip
     assert store.camera_frame(run_id=run_id) is None
+    assert store.take_evaluation_episode(run_id=run_id) is None  # nothing asked: nothing taken, nothing made
     assert store.resume_robot(run_id=run_id).stop_requested is False  # nothing to resume: nothing made
     assert _rows(store) == []
 
@@ -75,6 +78,62 @@ def test_ready_needs_a_waiting_reset_and_counts_each(store: Store) -> None:
         with pytest.raises(Conflict, match="no reset is waiting"):
             store.scene_ready(run_id=run_id)  # pressed twice: counted once
         assert _rows(store) == before
+
+
+def test_evaluate_now_asks_for_episodes_that_the_actor_takes_one_by_one(store: Store) -> None:
+    run_id = _run(store)
+    asked = store.request_evaluation(run_id=run_id, episodes=2)
+    assert (asked.evaluation_pending, asked.evaluation_round) == (2, 1)
+    assert store.robot_status(run_id=run_id) == asked
+    before = _rows(store)
+    with pytest.raises(Conflict, match="2 episodes of round 1 not begun yet"):
+        store.request_evaluation(run_id=run_id, episodes=5)  # pressed again while pending: nothing changes
+    assert _rows(store) == before
+    assert store.report_actor(run_id=run_id, state="moving").evaluation_pending == 2  # the actor reads it
+    assert [store.take_evaluation_episode(run_id=run_id) for _ in range(3)] == [1, 1, None]
+    assert store.robot_status(run_id=run_id).evaluation_pending == 0
+    again = store.request_evaluation(run_id=run_id, episodes=EVALUATION_EPISODES_MAX)  # the round is over
+    assert (again.evaluation_pending, again.evaluation_round) == (EVALUATION_EPISODES_MAX, 2)
+    assert store.take_evaluation_episode(run_id=run_id) == 2
+    messages = [event.message for event in store.events(run_id=run_id)]
+    assert "evaluate now: round 1, 2 episodes with the policy's mean action" in messages
+    assert f"evaluate now: round 2, {EVALUATION_EPISODES_MAX} episodes with the policy's mean action" in messages
+
+
+def test_two_actors_taking_the_last_episode_at_once_take_it_once(store: Store) -> None:
+    run_id = _run(store)
+    store.request_evaluation(run_id=run_id, episodes=3)
+    taken: list[int | None] = []
+    barrier = threading.Barrier(6)
+
+    def take() -> None:
+        barrier.wait()
+        taken.append(store.take_evaluation_episode(run_id=run_id))
+
+    threads = [threading.Thread(target=take) for _ in range(6)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert sorted(taken, key=lambda value: value is None) == [1, 1, 1, None, None, None]
+    assert store.robot_status(run_id=run_id).evaluation_pending == 0
+
+
+@pytest.mark.parametrize("episodes", [0, -1, EVALUATION_EPISODES_MAX + 1, True, 2.5, "3"])
+def test_evaluate_now_refuses_a_bad_count_and_changes_nothing(store: Store, episodes: object) -> None:
+    run_id = _run(store)
+    with pytest.raises(InvalidInput, match=f"from 1 to {EVALUATION_EPISODES_MAX}"):
+        store.request_evaluation(run_id=run_id, episodes=episodes)  # type: ignore[arg-type]
+    assert _rows(store) == []
+    store.request_evaluation(run_id=run_id, episodes=1)
+    store.take_evaluation_episode(run_id=run_id)
+    before = _rows(store)
+    with pytest.raises(InvalidInput):
+        store.request_evaluation(run_id=run_id, episodes=episodes)  # type: ignore[arg-type]
+    assert _rows(store) == before
+    assert [event.message for event in store.events(run_id=run_id)].count(
+        "evaluate now: round 1, 1 episode with the policy's mean action"
+    ) == 1
 
 
 def test_report_actor_stamps_the_time_keeps_the_frame_and_returns_the_controls(store: Store) -> None:
@@ -127,6 +186,9 @@ def test_an_unknown_run_is_not_found_everywhere(store: Store) -> None:
     for call in calls:
         with pytest.raises(NotFound, match="run 404 not found"):
             call(run_id=404)
+    with pytest.raises(NotFound, match="run 404 not found"):
+        store.request_evaluation(run_id=404, episodes=2)
+    assert store.take_evaluation_episode(run_id=404) is None
     with pytest.raises(NotFound, match="run 404 not found"):
         store.report_actor(run_id=404, state="moving", frame_png=_png())
     assert _rows(store) == []
@@ -185,7 +247,7 @@ def test_the_api_stops_resumes_and_says_whether_the_actor_is_live(client: TestCl
     assert shown == {
         "run_id": run_id, "run_name": "", "stop_requested": False, "reset_needed": False, "reset_count": 0,
         "actor_state": None, "actor_seen_at": None, "actor_age_seconds": None, "live": False, "frame_at": None,
-        "camera_url": None,
+        "camera_url": None, "evaluation_pending": 0, "evaluation_round": 0,
     }  # fmt: skip
     for _ in range(2):
         stopped = client.post(f"/api/runs/{run_id}/robot/stop")
@@ -215,6 +277,29 @@ def test_ready_is_409_without_a_waiting_reset_and_counts_after_one(client: TestC
     assert client.post(f"/api/runs/{run_id}/robot/ready").status_code == 409
     assert _rows(store) == before
     assert store.robot_status(run_id=run_id).reset_count == 1
+
+
+def test_evaluate_now_is_202_then_409_while_pending_and_422_for_a_bad_count(client: TestClient, store: Store) -> None:
+    run_id = _run(store)
+    accepted = client.post(f"/api/runs/{run_id}/robot/evaluate", json={"episodes": 3})
+    assert accepted.status_code == 202
+    assert accepted.json()["run_id"] == run_id
+    assert (accepted.json()["evaluation_pending"], accepted.json()["evaluation_round"]) == (3, 1)
+    shown = client.get(f"/api/runs/{run_id}/robot").json()
+    assert (shown["evaluation_pending"], shown["evaluation_round"]) == (3, 1)
+    before = _rows(store)
+    refused = client.post(f"/api/runs/{run_id}/robot/evaluate", json={"episodes": 1})
+    assert refused.status_code == 409 and "not begun yet" in refused.json()["detail"]
+    bad = [{"episodes": 0}, {"episodes": 21}, {"episodes": "many"}, {"episodes": 2.5}, {}, {"episodes": 2, "x": 1}]
+    for body in bad:
+        assert client.post(f"/api/runs/{run_id}/robot/evaluate", json=body).status_code == 422, body
+    assert _rows(store) == before
+    for _ in range(3):
+        store.take_evaluation_episode(run_id=run_id)
+    again = client.post(f"/api/runs/{run_id}/robot/evaluate", json={"episodes": 1})
+    assert again.status_code == 202 and again.json()["evaluation_round"] == 2
+    missing = client.post("/api/runs/404/robot/evaluate", json={"episodes": 1})
+    assert missing.status_code == 404 and missing.json() == {"detail": "run 404 not found"}
 
 
 def test_the_camera_is_404_before_a_frame_then_the_newest_png_never_cached(client: TestClient, store: Store) -> None:
@@ -271,11 +356,13 @@ def test_a_refused_change_stores_nothing(make_client: Callable[..., TestClient],
     before = _rows(store)
     client = make_client()
     cross_site = {"Origin": "https://elsewhere.example"}
-    for action in ("stop", "resume", "ready"):
-        assert client.post(f"/api/runs/{run_id}/robot/{action}", headers=cross_site).status_code == 403
+    evaluate = {"episodes": 2}
+    for action in ("stop", "resume", "ready", "evaluate"):
+        refused = client.post(f"/api/runs/{run_id}/robot/{action}", headers=cross_site, json=evaluate)
+        assert refused.status_code == 403, action
     locked = make_client(api_token="robot-secret")
-    for action in ("stop", "resume", "ready"):
-        assert locked.post(f"/api/runs/{run_id}/robot/{action}").status_code == 401
+    for action in ("stop", "resume", "ready", "evaluate"):
+        assert locked.post(f"/api/runs/{run_id}/robot/{action}", json=evaluate).status_code == 401, action
     assert locked.get(f"/api/runs/{run_id}/robot").status_code == 401
     assert _rows(store) == before
     allowed = locked.post(f"/api/runs/{run_id}/robot/stop", headers={"Authorization": "Bearer robot-secret"})

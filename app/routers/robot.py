@@ -1,10 +1,11 @@
 """A run's robot: what a person does for the actor that drives it in real time (Stop robot, Resume, Ready once
-the scene is reset) and the actor's newest camera frame; GET /api/robots lists the robots at work, for the pages."""
+the scene is reset, Evaluate now) and the actor's newest camera frame; GET /api/robots lists the robots at work,
+for the pages."""
 
 from fastapi import APIRouter, HTTPException, Response
 
 from app.deps import ReadAuth, RunId, StoreDep, WriteAuth
-from app.schemas import WRITE_ERRORS, RobotStatusOut, errors, row_with
+from app.schemas import WRITE_ERRORS, EvaluateIn, RobotStatusOut, errors, row_with
 from contract.store import NotFound, RobotStatus, Store
 
 run_robot = APIRouter(prefix="/api/runs", tags=["robot"], responses=errors(401))
@@ -43,6 +44,19 @@ def resume_robot(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RobotStatu
 def scene_ready(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RobotStatusOut:
     """Ready: the scene is reset and the actor may start its episode (409 when no reset is waiting)."""
     return robot_out(store, store.scene_ready(run_id=run_id))
+
+
+@run_robot.post(
+    "/{run_id}/robot/evaluate",
+    response_model=RobotStatusOut,
+    status_code=202,
+    responses=errors(404, 409, *WRITE_ERRORS),
+)
+def evaluate_now(run_id: RunId, body: EvaluateIn, store: StoreDep, _auth: WriteAuth) -> RobotStatusOut:
+    """Evaluate now: the actor runs the next `episodes` episodes with the policy's mean action; the last frame of
+    each becomes a question, and the share of yes answers is the round's eval/success_rate (409 while an earlier
+    request still has episodes pending)."""
+    return robot_out(store, store.request_evaluation(run_id=run_id, episodes=body.episodes))
 
 
 @run_robot.get(

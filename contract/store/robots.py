@@ -1,6 +1,7 @@
 """Robots: the controls between a person and the actor that drives a run's robot in real time. One row per run
-(robot_controls, made on first use) holds the person's Stop robot / Resume and Ready (the scene is reset) and the
-actor's call for a reset, its state and its newest camera frame. The actor reports every control period
+(robot_controls, made on first use) holds the person's Stop robot / Resume, Ready (the scene is reset) and
+Evaluate now (episodes with the policy's mean action), and the actor's call for a reset, its state and its newest
+camera frame. The actor reports every control period
 (report_actor) and gets the controls back in the same round trip; the pages read them with robot_status and
 robot_runs. Times are the database's clock, never a host's.
 """
@@ -27,6 +28,8 @@ ACTOR_STATE_MAX = 100
 FRAME_MAX_BYTES = 8 * 1024 * 1024
 """The largest camera frame the store keeps (a PNG; the actor sends its newest one with each report)."""
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+EVALUATION_EPISODES_MAX = 20
+"""The most episodes one Evaluate now asks for."""
 
 
 @dataclass(frozen=True)
@@ -40,6 +43,10 @@ class RobotStatus:
     actor_state: str | None
     actor_seen_at: datetime | None
     frame_at: datetime | None
+    evaluation_pending: int
+    """Episodes of Evaluate now that the actor has not begun."""
+    evaluation_round: int
+    """How many times Evaluate now was pressed (the round of the newest request)."""
 
 
 _STATUS_COLUMNS = (
@@ -50,14 +57,17 @@ _STATUS_COLUMNS = (
     RobotControl.actor_state,
     RobotControl.actor_seen_at,
     RobotControl.frame_at,
+    RobotControl.evaluation_pending,
+    RobotControl.evaluation_round,
 )
 
 
 def _status(row: Any) -> RobotStatus:
-    run_id, stop_requested, reset_needed, reset_count, actor_state, actor_seen_at, frame_at = row
+    run_id, stop_requested, reset_needed, reset_count, actor_state, actor_seen_at, frame_at, pending, round_ = row
     return RobotStatus(
         run_id=run_id, stop_requested=bool(stop_requested), reset_needed=bool(reset_needed),
         reset_count=int(reset_count), actor_state=actor_state, actor_seen_at=actor_seen_at, frame_at=frame_at,
+        evaluation_pending=int(pending), evaluation_round=int(round_),
     )  # fmt: skip
 
 
@@ -65,7 +75,7 @@ def _no_controls(run_id: int) -> RobotStatus:
     """A run whose robot nobody has touched yet: not stopped, no reset waiting, no actor seen."""
     return RobotStatus(
         run_id=run_id, stop_requested=False, reset_needed=False, reset_count=0, actor_state=None,
-        actor_seen_at=None, frame_at=None,
+        actor_seen_at=None, frame_at=None, evaluation_pending=0, evaluation_round=0,
     )  # fmt: skip
 
 
@@ -128,6 +138,40 @@ class RobotStore(StoreBase):
                 self._controls_row(session, run_id=run_id, create=False)  # NotFound for an unknown run
                 raise Conflict("no reset is waiting")
             return status
+
+    def request_evaluation(self, *, run_id: int, episodes: int) -> RobotStatus:
+        """A person's Evaluate now: the actor runs the next `episodes` episodes with the policy's mean action, as
+        round evaluation_round + 1; an event says so. InvalidInput unless 1 <= episodes <= EVALUATION_EPISODES_MAX;
+        Conflict while an earlier request still has episodes pending (nothing changes then)."""
+        if isinstance(episodes, bool) or not isinstance(episodes, int) or not 1 <= episodes <= EVALUATION_EPISODES_MAX:
+            raise InvalidInput(f"episodes must be a whole number from 1 to {EVALUATION_EPISODES_MAX}, not {episodes!r}")
+        values = {"evaluation_pending": episodes, "evaluation_round": RobotControl.evaluation_round + 1}
+        with self.writing() as session:
+            idle = RobotControl.evaluation_pending <= 0
+            status = self._update(session, run_id=run_id, values=values, condition=idle)
+            if status is None:  # pending still, or no row yet
+                current = self._controls_row(session, run_id=run_id, create=True)
+                if current.evaluation_pending > 0:
+                    raise Conflict(
+                        f"an evaluation is under way: {current.evaluation_pending} episodes of round "
+                        f"{current.evaluation_round} not begun yet"
+                    )
+                status = self._update(session, run_id=run_id, values=values, condition=idle)
+                assert status is not None  # the row exists now, under this transaction
+            count = f"{episodes} episode" + ("s" if episodes > 1 else "")
+            message = f"evaluate now: round {status.evaluation_round}, {count} with the policy's mean action"
+            session.add(Event(run_id=run_id, message=message))
+            return status
+
+    def take_evaluation_episode(self, *, run_id: int) -> int | None:
+        """The actor, as an episode begins: one episode of Evaluate now taken (evaluation_pending - 1, in one
+        statement, so that no episode is taken twice) and its round; None when none is pending."""
+        with self.writing() as session:
+            status = self._update(
+                session, run_id=run_id, values={"evaluation_pending": RobotControl.evaluation_pending - 1},
+                condition=RobotControl.evaluation_pending > 0,
+            )  # fmt: skip
+        return None if status is None else status.evaluation_round
 
     def report_actor(self, *, run_id: int, state: str, frame_png: bytes | None = None) -> RobotStatus:
         """The actor, every control period: its state (cut to ACTOR_STATE_MAX characters) and, optionally, its
