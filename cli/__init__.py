@@ -65,6 +65,26 @@ def cmd_learn(args: argparse.Namespace) -> int:
     return work(settings, worker_name=args.name, once=args.once)
 
 
+def cmd_actor(args: argparse.Namespace) -> int:
+    """Drive a run's robot from this host for its learner elsewhere, linked by the database and checkpoint store."""
+    settings = get_settings()
+    from contract.store import Store
+    from learner.actor_link import serve_remote
+
+    def _interrupt(signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _interrupt)
+    store = Store(settings.resolved_database_url)
+    print(f"actor of run {args.run}: waiting for its learner at {settings.resolved_database_url}", flush=True)
+    try:
+        ended = serve_remote(store, run_id=args.run, checkpoint_base=settings.resolved_checkpoint_url)
+    except KeyboardInterrupt:
+        ended = "interrupted: the arm is held safe"
+    print(f"actor of run {args.run}: {ended}", flush=True)
+    return 0
+
+
 def cmd_config(_args: argparse.Namespace) -> int:
     """Every field of a run's configuration by part, with its default, as markdown (docs/configuration.md)."""
     from contract.config import reference_markdown
@@ -218,6 +238,12 @@ def build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--name", default=None, help="worker name (default: host:pid)")
     learn.add_argument("--once", action="store_true", help="train at most one run, then exit")
     learn.set_defaults(handler=cmd_learn)
+
+    actor = commands.add_parser(
+        "actor", help="drive a run's robot from this host while its learner trains elsewhere (remote_actor)"
+    )
+    actor.add_argument("--run", type=int, required=True, help="the run's id")
+    actor.set_defaults(handler=cmd_actor)
 
     up = commands.add_parser("up", help="web server and learner workers together")
     up.add_argument("--port", type=int, default=None)

@@ -230,6 +230,9 @@ class ExecutionConfig:
     """Real time: the actor holds the arm safe when the learner or the database has been silent this long."""
     reset_every_episode: bool = False
     """Real time: a person resets the scene before every episode (a robot env that needs it always asks)."""
+    remote_actor: bool = False
+    """Real time: the actor runs on the robot's host (`raq actor --run ID` there), linked to the learner through the
+    database and the checkpoint store; False: in a process beside the learner."""
 
 
 @dataclass

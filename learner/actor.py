@@ -98,14 +98,20 @@ class Controls:
 class _Actor:
     """The actor's state in its process."""
 
-    def __init__(self, settings: ActorSettings, connection: Connection, outbox: Any) -> None:
+    def __init__(
+        self, settings: ActorSettings, connection: Connection | Any, outbox: Any, env: gymnasium.Env | None = None
+    ) -> None:
+        """`connection` (poll, recv) brings the learner's messages and `outbox` (put) takes the actor's: a pipe and
+        a queue to a learner beside it, or a link through the store (learner/actor_link.py). `env`: one already
+        made (a remote actor keeps its robot between learners), else the run's env is made here."""
         torch.set_num_threads(1)
         with contextlib.suppress(OSError):  # the robot's clock before the learner's updates, where allowed
             os.setpriority(os.PRIO_PROCESS, 0, ACTOR_NICENESS)
         self.settings, self.connection, self.outbox = settings, connection, outbox
         self.config = TrainConfig.from_dict({**settings.config, "device": "cpu", "precision": "fp32"})
         cfg = self.config
-        self.env: gymnasium.Env = make_env(cfg.env_id, image_size=cfg.image_size, display_size=cfg.display_size)
+        self.owns_env = env is None
+        self.env: gymnasium.Env = env or make_env(cfg.env_id, image_size=cfg.image_size, display_size=cfg.display_size)
         self.action_space = self.env.action_space
         self.agent = SACAgent(cfg, int(self.action_space.shape[0]))
         self.generator = torch.Generator().manual_seed(cfg.seed)
@@ -192,8 +198,10 @@ class _Actor:
             self._loop()
         finally:
             self.done.set()
-            with contextlib.suppress(Exception):
-                self.env.close()
+            self.control_thread.join(timeout=1.0)
+            if self.owns_env:
+                with contextlib.suppress(Exception):
+                    self.env.close()
 
     def _loop(self) -> None:
         cfg = self.config
@@ -376,6 +384,23 @@ class ActorStep:
     """A step of an evaluation episode: its Evaluate now round (None: a training step)."""
 
 
+def actor_step(message: tuple) -> ActorStep:
+    """The ActorStep of one of the actor's messages (the tuples `_Actor` puts in its outbox); ActorError for its
+    "error"."""
+    kind = message[0]
+    if kind == "error":
+        raise ActorError(f"the actor failed:\n{message[1]}")
+    if kind == "step":
+        _, action, obs, reward, terminated, truncated, info, display, period, evaluation_round = message
+        return ActorStep(
+            kind, action, obs, reward, terminated, truncated, info, display, period, evaluation_round=evaluation_round
+        )
+    if kind == "reset":
+        _, obs, info, display = message
+        return ActorStep(kind, observation=obs, info=info, display=display)
+    return ActorStep(kind, state=message[1])
+
+
 class ActorProcess:
     """The learner's handle on its actor: start it, send it policies, take its messages, close it."""
 
@@ -420,21 +445,10 @@ class ActorProcess:
         message = self._get(timeout)
         if message is None:
             return None
-        kind = message[0]
-        if kind == "error":
-            raise ActorError(f"the actor failed:\n{message[1]}")
-        if kind == "step":
-            _, action, obs, reward, terminated, truncated, info, display, period, evaluation_round = message
-            self.display = display
-            return ActorStep(
-                kind, action, obs, reward, terminated, truncated, info, display, period,
-                evaluation_round=evaluation_round,
-            )  # fmt: skip
-        if kind == "reset":
-            _, obs, info, display = message
-            self.display = display
-            return ActorStep(kind, observation=obs, info=info, display=display)
-        return ActorStep(kind, state=message[1])
+        step = actor_step(message)
+        if step.display is not None:
+            self.display = step.display
+        return step
 
     def _get(self, timeout: float) -> tuple | None:
         try:

@@ -11,7 +11,9 @@ steps, scoring the query candidates waiting for a batch (f_psi is not the update
 f_psi trains on the update thread while the evaluation's episodes run on the loop's thread (they read pi only).
 
 With a robot env (or control_hz set) the env runs in real time instead, in an actor process (learner/actor.py):
-the loop takes its steps as they come and runs the SAC updates while none is waiting.
+the loop takes its steps as they come and runs the SAC updates while none is waiting. With remote_actor that
+actor runs on the robot's host (`raq actor`), linked through the database and the checkpoint store
+(learner/actor_link.py).
 
 Reward timing: the transition (s_t, a_t, s_{t+1}) is rewarded r = f_psi(s_{t+1}) (sparse: success(s_{t+1})),
 so the action that reaches the goal is the one credited; Alg. 2 writes r(s_t) but the state it means is the
@@ -56,6 +58,7 @@ from contract.envs import (
 from contract.images import decoded_array, model_array
 from contract.store import Run, RunPhase, RunStatus, Store
 from learner.actor import ActorProcess, ActorSettings
+from learner.actor_link import RemoteActor
 from learner.checkpoint import checkpoint_url as checkpoint_location
 from learner.checkpoint import load_checkpoint, load_json, save_checkpoint, save_json
 from learner.env_workers import ProcessEnv, process_envs
@@ -116,15 +119,19 @@ class Trainer:
         self.rng = np.random.default_rng(config.seed)
         size = config.image_size
         # how the loop executes is chosen here, once: a real-time actor, or envs stepped in lockstep with updates
-        control_hz = control_rate(config.env_id, config.control_hz)
-        self.actor: ActorProcess | None = None
-        if control_hz:
+        self.actor: ActorProcess | RemoteActor | None = None
+        if config.remote_actor:  # on the robot's host: the env is neither made nor imported here
+            self.actor = RemoteActor(
+                store, run_id=run_id, checkpoint_file=str(checkpoint_file), heartbeat=self.control.tick
+            )
+            envs: list[Any] = [self.actor]
+        elif control_hz := control_rate(config.env_id, config.control_hz):
             settings = ActorSettings(
                 config.to_dict(), run_id=run_id, database_url=store.url, control_hz=control_hz,
                 person_reset=config.reset_every_episode,
             )  # fmt: skip
             self.actor = ActorProcess(settings)
-            envs: list[Any] = [self.actor]
+            envs = [self.actor]
         elif config.env_processes:
             envs = process_envs(config.num_envs, config.env_id, image_size=size, display_size=config.display_size)
         else:

@@ -2,16 +2,17 @@
 
 Both processes open their own `Store` on the same database URL; they share nothing else. Rows come
 back detached (expire_on_commit=False); binary columns are deferred and read with the *_image methods. The
-methods live with their aggregate: runs.py, queries.py, goal_sets.py, metrics.py and auth.py, over base.py.
+methods live with their aggregate: runs.py, queries.py, goal_sets.py, metrics.py, auth.py, robots.py and
+actor_link.py, over base.py.
 """
 
+from contract.store.actor_link import ActorLinkStore
 from contract.store.auth import AuthStore
 from contract.store.goal_sets import GoalSetStore
 from contract.store.metrics import MetricStore
 from contract.store.queries import QueryStore
-from contract.store.robots import RobotStore
 from contract.store.runs import RunStore
 
 
-class Store(RunStore, QueryStore, GoalSetStore, MetricStore, AuthStore, RobotStore):
+class Store(RunStore, QueryStore, GoalSetStore, MetricStore, AuthStore, ActorLinkStore):
     """The one API over the database for the learner, the server and the tools."""

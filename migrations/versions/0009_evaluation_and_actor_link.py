@@ -2,7 +2,7 @@
 actor on another host (the learner's keep-alive, its newest policy's version, the step the run starts at, its
 close, the actor's action and observation spaces); actor_messages: the remote actor's steps, in order
 
-Revision ID: 0009_robot_evaluation_and_actor_link
+Revision ID: 0009_evaluation_and_actor_link
 Revises: 0008_robot_controls
 Create Date: 2026-12-02 04:30:00
 """
@@ -12,26 +12,28 @@ from collections.abc import Sequence
 import sqlalchemy as sa
 from alembic import op
 
-revision: str = "0009_robot_evaluation_and_actor_link"
+revision: str = "0009_evaluation_and_actor_link"
 down_revision: str | None = "0008_robot_controls"
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 
-ROBOT_COLUMNS = (
-    sa.Column("evaluation_pending", sa.Integer(), server_default="0", nullable=False),
-    sa.Column("evaluation_round", sa.Integer(), server_default="0", nullable=False),
-    sa.Column("learner_seen_at", sa.DateTime(timezone=True), nullable=True),
-    sa.Column("policy_version", sa.Integer(), server_default="0", nullable=False),
-    sa.Column("start_step", sa.BigInteger(), nullable=True),
-    sa.Column("learner_closed", sa.Boolean(), server_default=sa.false(), nullable=False),
-    sa.Column("actor_spaces", sa.JSON(), nullable=True),
-)
+
+def robot_columns() -> tuple[sa.Column, ...]:
+    return (
+        sa.Column("evaluation_pending", sa.Integer(), server_default="0", nullable=False),
+        sa.Column("evaluation_round", sa.Integer(), server_default="0", nullable=False),
+        sa.Column("learner_seen_at", sa.DateTime(timezone=True), nullable=True),
+        sa.Column("policy_version", sa.Integer(), server_default="0", nullable=False),
+        sa.Column("start_step", sa.BigInteger(), nullable=True),
+        sa.Column("learner_closed", sa.Boolean(), server_default=sa.false(), nullable=False),
+        sa.Column("actor_spaces", sa.JSON(), nullable=True),
+    )
 
 
 def upgrade() -> None:
     with op.batch_alter_table("robot_controls") as batch:
-        for column in ROBOT_COLUMNS:
-            batch.add_column(column.copy())
+        for column in robot_columns():
+            batch.add_column(column)
     op.create_table(
         "actor_messages",
         sa.Column("id", sa.Integer(), autoincrement=True, nullable=False),
@@ -51,5 +53,5 @@ def downgrade() -> None:
     op.drop_index("ix_actor_messages_run_id_id", table_name="actor_messages")
     op.drop_table("actor_messages")
     with op.batch_alter_table("robot_controls") as batch:
-        for column in reversed(ROBOT_COLUMNS):
+        for column in reversed(robot_columns()):
             batch.drop_column(column.name)

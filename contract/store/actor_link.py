@@ -1,0 +1,154 @@
+"""The link between a learner and an actor on another host (the robot's): what they share goes through the
+database, and the policy's weights through the checkpoint store (object storage).
+
+The learner opens the link (open_actor_link: the step its run starts at), stamps it four times a second
+(learner_keepalive) and publishes each new policy's version (publish_actor_policy) after writing its weights;
+the actor announces its action and observation spaces and its control rate (announce_actor), posts its steps in
+order (post_actor_messages) and reads the link's state (actor_link); the learner takes the steps in id order and
+deletes those it has taken (take_actor_messages). Ages are measured on the database's clock, never a host's.
+"""
+
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import delete, insert, select
+
+from contract.store.base import StoreBase
+from contract.store.models import ActorMessage, RobotControl
+from contract.store.robots import RobotStore
+
+TAKE_MAX = 256
+"""The most actor messages one take_actor_messages returns."""
+
+
+@dataclass(frozen=True)
+class ActorLink:
+    """The learner's side of the link as the actor reads it, and the actor's announcement as the learner reads it."""
+
+    start_step: int | None
+    """The step the run is at when its learner opened the link (None: no learner has it open)."""
+    learner_closed: bool
+    policy_version: int
+    learner_seen_at: datetime | None
+    learner_age_seconds: float | None
+    """Seconds since the learner's last keep-alive, by the database's clock (None: never)."""
+    actor_spaces: dict[str, Any] | None
+    actor_age_seconds: float | None
+    """Seconds since the actor's last report, by the database's clock (None: never)."""
+
+
+@dataclass(frozen=True)
+class ActorLinkMessage:
+    """One message of the actor, as stored."""
+
+    id: int
+    kind: str
+    payload: dict[str, Any]
+    observation_png: bytes | None
+    display_png: bytes | None
+
+
+class ActorLinkStore(RobotStore, StoreBase):
+    """Learner and remote actor: the link's state in robot_controls, the actor's messages in actor_messages."""
+
+    def open_actor_link(self, *, run_id: int, start_step: int | None) -> ActorLink:
+        """The learner takes the link: messages of an earlier learner are dropped; `start_step` (None: not yet)
+        tells the actor where the run is. NotFound for an unknown run."""
+        with self.writing() as session:
+            session.execute(delete(ActorMessage).where(ActorMessage.run_id == run_id))
+            values = {"start_step": start_step, "learner_closed": False, "learner_seen_at": self._db_now()}
+            self._update_or_create(session, run_id=run_id, values=values)
+        return self.actor_link(run_id=run_id)
+
+    def start_actor_link(self, *, run_id: int, start_step: int) -> None:
+        """The learner has read its checkpoint: the actor may begin its first episode at `start_step`."""
+        with self.writing() as session:
+            self._update_or_create(session, run_id=run_id, values={"start_step": int(start_step)})
+
+    def learner_keepalive(self, *, run_id: int) -> None:
+        """The learner is alive (it calls this every quarter of a second)."""
+        with self.writing() as session:
+            self._update_or_create(session, run_id=run_id, values={"learner_seen_at": self._db_now()})
+
+    def publish_actor_policy(self, *, run_id: int) -> int:
+        """A new policy is in the checkpoint store: its version (one more than the last)."""
+        with self.writing() as session:
+            self._update_or_create(session, run_id=run_id, values={"policy_version": RobotControl.policy_version + 1})
+            return int(session.scalar(select(RobotControl.policy_version).where(RobotControl.run_id == run_id)))
+
+    def close_actor_link(self, *, run_id: int) -> None:
+        """The learner lets go of the actor: it holds the arm and waits for the next learner."""
+        with self.writing() as session:
+            self._update_or_create(session, run_id=run_id, values={"learner_closed": True, "start_step": None})
+
+    def announce_actor(self, *, run_id: int, spaces: dict[str, Any]) -> None:
+        """The actor is up: its action and observation spaces and its control rate, as JSON."""
+        with self.writing() as session:
+            self._update_or_create(session, run_id=run_id, values={"actor_spaces": spaces})
+
+    def actor_link(self, *, run_id: int) -> ActorLink:
+        """The link's state (the defaults before anyone used it); NotFound for an unknown run."""
+        self.robot_status(run_id=run_id)  # NotFound for an unknown run
+        now = self._db_now()
+        with self.reading() as session:
+            row = session.execute(
+                select(
+                    RobotControl.start_step, RobotControl.learner_closed, RobotControl.policy_version,
+                    RobotControl.learner_seen_at, RobotControl.actor_spaces, RobotControl.actor_seen_at, now,
+                ).where(RobotControl.run_id == run_id)
+            ).one_or_none()  # fmt: skip
+        if row is None:
+            return ActorLink(None, False, 0, None, None, None, None)
+        start_step, closed, version, learner_seen_at, spaces, actor_seen_at, db_now = row
+        db_now = _as_datetime(db_now)
+        return ActorLink(
+            start_step=start_step, learner_closed=bool(closed), policy_version=int(version),
+            learner_seen_at=learner_seen_at, learner_age_seconds=_age(db_now, learner_seen_at),
+            actor_spaces=spaces, actor_age_seconds=_age(db_now, actor_seen_at),
+        )  # fmt: skip
+
+    def post_actor_messages(
+        self, *, run_id: int, messages: list[tuple[str, dict[str, Any], bytes | None, bytes | None]]
+    ) -> None:
+        """The actor's messages (kind, payload, observation PNG, display PNG), in order, in one transaction."""
+        if not messages:
+            return
+        rows = [
+            {"run_id": run_id, "kind": kind, "payload": payload, "observation_png": observation,
+             "display_png": display, "created_at": self._db_now()}
+            for kind, payload, observation, display in messages
+        ]  # fmt: skip
+        with self.writing() as session:
+            session.execute(insert(ActorMessage).values(rows))
+
+    def take_actor_messages(self, *, run_id: int, after_id: int, limit: int = TAKE_MAX) -> list[ActorLinkMessage]:
+        """The actor's messages after `after_id`, oldest first; those before `after_id` (taken before) are deleted.
+        The row `after_id` itself is kept: SQLite numbers a new row one past the highest left, so an emptied table
+        would number the next message below the taker's cursor."""
+        with self.writing() as session:
+            session.execute(delete(ActorMessage).where(ActorMessage.run_id == run_id, ActorMessage.id < after_id))
+            rows = session.execute(
+                select(
+                    ActorMessage.id, ActorMessage.kind, ActorMessage.payload, ActorMessage.observation_png,
+                    ActorMessage.display_png,
+                )
+                .where(ActorMessage.run_id == run_id, ActorMessage.id > after_id)
+                .order_by(ActorMessage.id)
+                .limit(limit)
+            ).all()  # fmt: skip
+        return [
+            ActorLinkMessage(id=row[0], kind=row[1], payload=row[2], observation_png=row[3], display_png=row[4])
+            for row in rows
+        ]
+
+
+def _as_datetime(value: Any) -> datetime:
+    """The database's now() as a datetime: SQLite's strftime text or PostgreSQL's timestamptz."""
+    if isinstance(value, datetime):
+        return value
+    return datetime.fromisoformat(str(value)[:26]).replace(tzinfo=UTC)
+
+
+def _age(now: datetime, moment: datetime | None) -> float | None:
+    return None if moment is None else (now - moment).total_seconds()

@@ -1,0 +1,350 @@
+"""An actor on another host than its learner: the robot's host runs `raq actor --run ID`, the learner trains on
+its own (a GPU box, say), and the two share only what the rest of the product shares: the database and the
+checkpoint store (a folder both mount, or object storage by URL).
+
+- The learner's end (`RemoteActor`) has the local actor's interface (learner/actor.py's ActorProcess): it opens
+  the link, stamps a keep-alive four times a second, writes each new pi to the checkpoint store
+  (ACTOR_POLICY_FILENAME) and publishes its version, and takes the actor's steps from the database in order.
+- The actor's end (`StoreLink`) gives learner/actor.py's `_Actor` the pipe and queue it expects: a thread polls the
+  link (new keep-alive, start, close, a newer policy: loaded from the checkpoint store between the steps) and
+  another posts the actor's messages, so the robot's clock never waits for the database.
+- `serve_remote` is `raq actor`: it makes the robot's env once and drives it for every learner that opens the
+  run's link, holding the arm safe between them; it ends when the run ends or on Ctrl-C.
+
+The watchdog is the local actor's: no keep-alive for `watchdog_seconds` (the learner died, or its host is cut
+off) or no answer from the database that long, and the arm is held safe.
+"""
+
+import contextlib
+import io
+import queue
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from PIL import Image
+
+from contract.checkpoint_location import ACTOR_POLICY_FILENAME, checkpoint_url, sibling
+from contract.config import TrainConfig
+from contract.envs import control_rate, encode_png, jsonable, make_env
+from contract.store import RunStatus, Store, is_transient
+from learner.actor import (
+    KEEPALIVE_SECONDS,
+    ActorError,
+    ActorSettings,
+    ActorState,
+    ActorStep,
+    _Actor,
+    actor_step,
+)
+from learner.checkpoint import load_checkpoint, save_checkpoint
+
+LINK_POLL_SECONDS = 0.05
+"""How often each end reads the other's side of the link from the database."""
+POST_SECONDS = 0.02
+"""How often the actor's messages waiting to be posted go to the database (in one transaction)."""
+ACTOR_WAIT_SECONDS = 600.0
+"""How long a learner waits for `raq actor --run ID` to come up on the robot's host before the run fails."""
+ACTOR_LIVE_SECONDS = 5.0
+"""An actor that reported within this many seconds is up."""
+WAITING_FOR_LEARNER = "waiting for a learner"
+"""The remote actor's state between learners (the arm held safe)."""
+
+
+# ====================================================================== messages as rows
+def encode_message(message: tuple) -> tuple[str, dict[str, Any], bytes | None, bytes | None]:
+    """One of `_Actor`'s messages as a row: its kind, its items as JSON, and up to two images as PNGs (the
+    observation and the display view, lossless)."""
+    kind, *items = message
+    images: list[bytes] = []
+
+    def encoded(value: Any) -> Any:
+        if isinstance(value, np.ndarray) and value.dtype == np.uint8 and value.ndim == 3:
+            images.append(encode_png(value))
+            return {"__image__": len(images) - 1}
+        if isinstance(value, np.ndarray):
+            return {"__array__": value.tolist(), "dtype": str(value.dtype)}
+        return jsonable(value)
+
+    payload = {"items": [encoded(item) for item in items]}
+    if len(images) > 2:
+        raise ValueError(f"an actor message holds at most two images, not {len(images)}")
+    images += [None] * (2 - len(images))  # type: ignore[list-item]
+    return kind, payload, images[0], images[1]
+
+
+def decode_message(kind: str, payload: dict[str, Any], observation: bytes | None, display: bytes | None) -> tuple:
+    """The message `encode_message` stored."""
+    pngs = (observation, display)
+
+    def decoded(value: Any) -> Any:
+        if isinstance(value, dict) and "__image__" in value:
+            data = pngs[int(value["__image__"])]
+            assert data is not None
+            with Image.open(io.BytesIO(data)) as image:
+                return np.array(image.convert("RGB"))
+        if isinstance(value, dict) and "__array__" in value:
+            return np.asarray(value["__array__"], dtype=value["dtype"])
+        return value
+
+    return (kind, *(decoded(item) for item in payload["items"]))
+
+
+def spaces_json(action_space: spaces.Box, observation_space: spaces.Box, hz: float) -> dict[str, Any]:
+    """The actor's announcement: its action space (bounds per dimension), observation shape and control rate."""
+    return {
+        "action": {"low": action_space.low.tolist(), "high": action_space.high.tolist()},
+        "observation_shape": list(observation_space.shape),
+        "control_hz": float(hz),
+    }
+
+
+def spaces_of(announced: dict[str, Any]) -> tuple[spaces.Box, spaces.Box]:
+    action = announced["action"]
+    low, high = np.asarray(action["low"], np.float32), np.asarray(action["high"], np.float32)
+    observation = spaces.Box(0, 255, tuple(announced["observation_shape"]), np.uint8)
+    return spaces.Box(low, high, dtype=np.float32), observation
+
+
+# ====================================================================== the actor's end
+class StoreLink:
+    """The actor's end: `connection` (poll, recv) has the learner's messages as a pipe would; `outbox` (put)
+    takes the actor's, posted by a thread of its own."""
+
+    def __init__(self, store: Store, *, run_id: int, policy_url: str, hz: float) -> None:
+        self.store, self.run_id, self.policy_url, self.hz = store, run_id, policy_url, hz
+        self.inbox: queue.Queue[tuple] = queue.Queue()
+        self.outbox: queue.Queue[tuple] = queue.Queue()
+        self.connection = self  # (poll and recv below)
+        self.closed = threading.Event()
+        self.started = False
+        self.learner_seen_at: Any = None
+        self.policy_version = 0
+        self.threads = [
+            threading.Thread(target=self._poll_link, name="link-poll", daemon=True),
+            threading.Thread(target=self._post, name="link-post", daemon=True),
+        ]
+        for thread in self.threads:
+            thread.start()
+
+    def poll(self) -> bool:
+        return not self.inbox.empty()
+
+    def recv(self) -> tuple:
+        return self.inbox.get_nowait()
+
+    def close(self) -> None:
+        """Stop both threads, the actor's last messages posted first."""
+        self.closed.set()
+        for thread in self.threads:
+            thread.join(timeout=5.0)
+
+    def _poll_link(self) -> None:
+        """The learner's side: a new keep-alive is a beat; then the start, a newer policy, the close."""
+        while not self.closed.wait(LINK_POLL_SECONDS):
+            with contextlib.suppress(Exception):  # the store away: no beats, and the watchdog holds the arm
+                link = self.store.actor_link(run_id=self.run_id)
+                if link.learner_seen_at is not None and link.learner_seen_at != self.learner_seen_at:
+                    self.learner_seen_at = link.learner_seen_at
+                    self.inbox.put(("beat",))
+                if link.start_step is not None and not self.started:
+                    self.started = True
+                    self.inbox.put(("start", link.start_step))
+                if link.policy_version > self.policy_version:
+                    state = load_checkpoint(self.policy_url)
+                    if state is not None:
+                        self.policy_version = max(link.policy_version, int(state["version"]))
+                        self.inbox.put(("policy", state["modules"]))
+                if link.learner_closed and self.started:
+                    self.inbox.put(("close",))
+                    return
+
+    def _post(self) -> None:
+        """Post what waits in the outbox, in order, every POST_SECONDS (kept while the store is away)."""
+        waiting: list[tuple[str, dict[str, Any], bytes | None, bytes | None]] = []
+        while True:
+            closing = self.closed.wait(POST_SECONDS)
+            while True:
+                try:
+                    message = self.outbox.get_nowait()
+                except queue.Empty:
+                    break
+                if message[0] == "ready":
+                    action_space, observation_space = message[1], message[2]
+                    with contextlib.suppress(Exception):
+                        self.store.announce_actor(
+                            run_id=self.run_id, spaces=spaces_json(action_space, observation_space, self.hz)
+                        )
+                    continue
+                waiting.append(encode_message(message))
+            if waiting:
+                try:
+                    self.store.post_actor_messages(run_id=self.run_id, messages=waiting)
+                    waiting = []
+                except Exception:
+                    if closing:
+                        return
+            if closing:
+                return
+
+
+def serve_remote(store: Store, *, run_id: int, checkpoint_base: str, stop: threading.Event | None = None) -> str:
+    """`raq actor --run ID`: drive the robot for each learner that opens the run's link until the run ends (or
+    `stop` is set, or Ctrl-C); the arm is held safe between learners. Returns why it ended."""
+    stop = stop or threading.Event()
+    run = store.get_run(run_id=run_id)
+    config = TrainConfig.from_dict({**run.config_values(), "device": "cpu", "precision": "fp32"})
+    hz = control_rate(config.env_id, config.control_hz)
+    if hz <= 0:
+        raise ValueError(f"{config.env_id} is not a robot env: give the run a control_hz to drive it in real time")
+    env = make_env(config.env_id, image_size=config.image_size, display_size=config.display_size)
+    policy_url = sibling(checkpoint_url(checkpoint_base, run_id), ACTOR_POLICY_FILENAME)
+    settings = ActorSettings(
+        config.to_dict(), run_id=run_id, database_url=store.url, control_hz=hz,
+        person_reset=config.reset_every_episode,
+    )  # fmt: skip
+    announcement = spaces_json(env.action_space, env.observation_space, hz)  # type: ignore[arg-type]
+    state = WAITING_FOR_LEARNER  # (after a learner died: "held safe: learner gone" until the next one)
+    try:
+        while not stop.is_set():
+            ended = _wait_for_learner(store, run_id=run_id, announcement=announcement, state=state, stop=stop)
+            if ended is not None:
+                return ended
+            link = StoreLink(store, run_id=run_id, policy_url=policy_url, hz=hz)
+            actor = _Actor(settings, link.connection, link.outbox, env=env)
+            try:
+                actor.run()
+            finally:
+                link.close()
+            state = ActorState.LEARNER_GONE if actor.state == ActorState.LEARNER_GONE else WAITING_FOR_LEARNER
+        return "stopped"
+    finally:
+        with contextlib.suppress(Exception):
+            env.unwrapped.stop()  # type: ignore[attr-defined]
+        with contextlib.suppress(Exception):
+            store.report_actor(run_id=run_id, state=ActorState.CLOSED)
+        env.close()
+
+
+def _wait_for_learner(
+    store: Store, *, run_id: int, announcement: dict[str, Any], state: str, stop: threading.Event
+) -> str | None:
+    """Announce the actor and report it in `state` until a live learner opens the link (None), or why not to wait:
+    the run ended, or `stop`."""
+    limit = TrainConfig().watchdog_seconds
+    announced = False
+    while not stop.is_set():
+        try:
+            if not announced:
+                store.announce_actor(run_id=run_id, spaces=announcement)
+                announced = True
+            store.report_actor(run_id=run_id, state=state)
+            run = store.get_run(run_id=run_id)
+            if run.status not in RunStatus.LIVE:
+                return f"run {run.status}"
+            link = store.actor_link(run_id=run_id)
+            fresh = link.learner_age_seconds is not None and link.learner_age_seconds < limit
+            if fresh and link.start_step is not None and not link.learner_closed:
+                return None
+        except Exception as error:  # the store away: keep waiting (the arm is held)
+            if not is_transient(error):
+                raise
+        stop.wait(0.5)
+    return "stopped"
+
+
+# ====================================================================== the learner's end
+class RemoteActor:
+    """The learner's handle on an actor on another host, with ActorProcess's interface."""
+
+    def __init__(self, store: Store, *, run_id: int, checkpoint_file: str, heartbeat: Any = None) -> None:
+        """Open the link and wait (up to ACTOR_WAIT_SECONDS, `heartbeat()` called meanwhile) for the actor to
+        announce itself."""
+        self.store, self.run_id = store, run_id
+        self.policy_url = sibling(checkpoint_file, ACTOR_POLICY_FILENAME)
+        self.closed = threading.Event()
+        self.display: np.ndarray | None = None
+        self.buffer: deque[tuple] = deque()
+        self.cursor, self.fetched_at = 0, -1.0
+        store.open_actor_link(run_id=run_id, start_step=None)
+        self.keepalive = threading.Thread(target=self._keep_alive, name="link-keepalive", daemon=True)
+        self.keepalive.start()
+        deadline = time.monotonic() + ACTOR_WAIT_SECONDS
+        while True:
+            link = store.actor_link(run_id=run_id)
+            alive = link.actor_age_seconds is not None and link.actor_age_seconds < ACTOR_LIVE_SECONDS
+            if link.actor_spaces is not None and alive:
+                break
+            if time.monotonic() > deadline:
+                self.close()
+                raise ActorError(
+                    f"no actor for run {run_id} within {ACTOR_WAIT_SECONDS:.0f} s: start `raq actor --run {run_id}` "
+                    "on the robot's host"
+                )
+            if heartbeat is not None:
+                heartbeat()
+            time.sleep(LINK_POLL_SECONDS * 4)
+        self.action_space, self.observation_space = spaces_of(link.actor_spaces)
+        self.control_hz = float(link.actor_spaces["control_hz"])
+
+    @property
+    def unwrapped(self) -> "RemoteActor":
+        return self
+
+    def render(self) -> np.ndarray | None:
+        """The display frame sent with the last message (the state of the newest observation)."""
+        return self.display
+
+    def start(self, step: int) -> None:
+        """The run is at `step` (after its checkpoint): the actor may begin its first episode."""
+        self.store.start_actor_link(run_id=self.run_id, start_step=step)
+
+    def send_policy(self, modules: dict[str, dict[str, Any]]) -> None:
+        """pi's weights to the checkpoint store, then their version to the actor."""
+        version = self.store.actor_link(run_id=self.run_id).policy_version + 1
+        save_checkpoint(self.policy_url, {"version": version, "modules": modules})
+        self.store.publish_actor_policy(run_id=self.run_id)
+
+    def next_message(self, timeout: float) -> ActorStep | None:
+        """The actor's next message within `timeout` seconds, or None."""
+        deadline = time.monotonic() + timeout
+        while not self.buffer:
+            if time.monotonic() - self.fetched_at >= LINK_POLL_SECONDS / 2:
+                self._fetch()
+                continue
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return None
+            time.sleep(min(remaining, LINK_POLL_SECONDS / 2))
+        step = actor_step(self.buffer.popleft())
+        if step.display is not None:
+            self.display = step.display
+        return step
+
+    def _fetch(self) -> None:
+        self.fetched_at = time.monotonic()
+        try:
+            rows = self.store.take_actor_messages(run_id=self.run_id, after_id=self.cursor)
+        except Exception as error:  # the store away: nothing new (the run's own outage handling waits it out)
+            if is_transient(error):
+                return
+            raise
+        for row in rows:
+            self.buffer.append(decode_message(row.kind, row.payload, row.observation_png, row.display_png))
+            self.cursor = row.id
+
+    def _keep_alive(self) -> None:
+        while not self.closed.wait(KEEPALIVE_SECONDS):
+            with contextlib.suppress(Exception):
+                self.store.learner_keepalive(run_id=self.run_id)
+
+    def close(self) -> None:
+        """Let go of the actor (it holds the arm and waits for the next learner). Once only."""
+        if self.closed.is_set():
+            return
+        self.closed.set()
+        with contextlib.suppress(Exception):
+            self.store.close_actor_link(run_id=self.run_id)

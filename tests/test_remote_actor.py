@@ -1,0 +1,162 @@
+"""An actor on another host than its learner: `raq actor --run ID` drives the env from its own process, sharing only
+the database URL and the checkpoint folder with the learner; the policy reaches it through the checkpoint store; a
+killed learner leaves the arm held safe within the watchdog time, and the next learner drives the same actor."""
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from conftest import create_run, learn_once_beside
+from test_actor import real_time_config
+
+from app.migrate import upgrade
+from contract.checkpoint_location import ACTOR_POLICY_FILENAME
+from contract.settings import Settings
+from contract.store import NotFound, RunStatus, Store
+from learner.actor import ActorState
+from learner.actor_link import decode_message, encode_message
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def host_env(settings: Settings) -> dict[str, str]:
+    """What a host of this deployment is given: the database URL and the data (checkpoint) folder."""
+    env = dict(os.environ, RAQ_DATA_DIR=str(settings.data_dir), RAQ_DATABASE_URL=settings.resolved_database_url)
+    env.update(OMP_NUM_THREADS="1", MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    return env
+
+
+def wait_until(condition, seconds: float, what: str, process: subprocess.Popen | None = None) -> None:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + seconds
+    while not condition():
+        assert process is None or process.poll() is None, f"{what}: the process exited"
+        assert time.monotonic() < deadline, f"not within {seconds} s: {what}"
+        time.sleep(0.02)
+
+
+def test_messages_keep_their_images_arrays_and_info_through_the_database() -> None:
+    import numpy as np  # noqa: PLC0415
+
+    observation = np.random.default_rng(0).integers(0, 256, (16, 16, 3), dtype=np.uint8)
+    display = np.full((32, 32, 3), 7, dtype=np.uint8)
+    action = np.array([0.25, -1.0], dtype=np.float32)
+    message = ("step", action, observation, 0.5, False, True, {"success": 1.0, "pos": np.zeros(2)}, display, 0.2)
+    kind, payload, observation_png, display_png = encode_message(message)
+    decoded = decode_message(kind, payload, observation_png, display_png)
+    assert decoded[0] == "step" and decoded[3:7] == (0.5, False, True, {"success": 1.0, "pos": [0.0, 0.0]})
+    assert np.array_equal(decoded[1], action) and decoded[1].dtype == np.float32
+    assert np.array_equal(decoded[2], observation) and np.array_equal(decoded[7], display)
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def link_store(request: pytest.FixtureRequest, database_url: str) -> Iterator[Store]:
+    url = database_url if request.param == "sqlite" else request.getfixturevalue("postgres_url")
+    if request.param == "postgresql":
+        upgrade(url)
+    opened = Store(url)
+    yield opened
+    opened.dispose()
+
+
+def test_the_link_carries_the_actors_messages_in_order_and_the_learners_side(link_store: Store) -> None:
+    store = link_store
+    run_id = store.create_run(env_id="robot.standin:PusherStandIn-v0", algorithm="vice_raq", config={}).id
+    link = store.open_actor_link(run_id=run_id, start_step=None)
+    assert link.start_step is None and not link.learner_closed and link.actor_spaces is None
+    assert link.learner_age_seconds is not None and 0 <= link.learner_age_seconds < 2
+    store.announce_actor(run_id=run_id, spaces={"control_hz": 5.0})
+    store.report_actor(run_id=run_id, state="acting")
+    store.start_actor_link(run_id=run_id, start_step=1200)
+    link = store.actor_link(run_id=run_id)
+    assert link.start_step == 1200 and link.actor_spaces == {"control_hz": 5.0}
+    assert link.actor_age_seconds is not None and link.actor_age_seconds < 2
+    assert [store.publish_actor_policy(run_id=run_id) for _ in range(2)] == [1, 2]
+
+    cursor, seen = 0, []
+    for batch in (["a", "b", "c"], ["d"], ["e", "f"]):  # each batch taken whole before the next is posted
+        store.post_actor_messages(run_id=run_id, messages=[("state", {"items": [name]}, None, None) for name in batch])
+        taken = store.take_actor_messages(run_id=run_id, after_id=cursor)
+        assert store.take_actor_messages(run_id=run_id, after_id=taken[-1].id) == []
+        seen += [message.payload["items"][0] for message in taken]
+        cursor = taken[-1].id
+    assert seen == ["a", "b", "c", "d", "e", "f"]
+
+    store.close_actor_link(run_id=run_id)
+    link = store.actor_link(run_id=run_id)
+    assert link.learner_closed and link.start_step is None and link.policy_version == 2
+    with pytest.raises(NotFound):
+        store.actor_link(run_id=run_id + 1)
+
+
+def test_a_remote_actor_drives_the_robot_for_each_learner_and_holds_it_when_one_is_killed(
+    dot_reach: tuple[Settings, Store, int],
+) -> None:
+    settings, store, goal_set_id = dot_reach
+    config = real_time_config(remote_actor=True, total_steps=300, checkpoint_every=50)
+    run_id = create_run(store, goal_set_id, config)
+    env = host_env(settings)
+    actor = subprocess.Popen(
+        [sys.executable, "-m", "cli", "actor", "--run", str(run_id)], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    learner_log = (settings.data_dir / "learner.log").open("wb")
+    learner = subprocess.Popen(
+        [sys.executable, "-m", "learner.worker", "--once", "--name", "doomed"], cwd=ROOT, env=env,
+        stdout=learner_log, stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    done = threading.Event()
+    person = threading.Thread(target=reset_and_answer, args=(store, run_id, done), daemon=True)
+    person.start()
+    output = ""
+    try:
+        # the first learner: the actor's steps reach it through the database, its policy the actor through the
+        # checkpoint folder
+        wait_until(lambda: store.get_run(run_id=run_id).step >= 100, 120, "the first learner's steps", learner)
+        wait_until(lambda: store.actor_link(run_id=run_id).policy_version >= 2, 30, "a policy sent", learner)
+        assert (settings.checkpoint_dir / f"run-{run_id}" / ACTOR_POLICY_FILENAME).exists()
+        learner.send_signal(signal.SIGKILL)
+        killed = time.monotonic()
+        learner.wait(timeout=10)
+        wait_until(
+            lambda: store.robot_status(run_id=run_id).actor_state == ActorState.LEARNER_GONE, 5,
+            "the arm held safe after the learner's SIGKILL", actor,
+        )  # fmt: skip
+        assert time.monotonic() - killed < config.watchdog_seconds + 0.5
+        time.sleep(1.0)  # the arm stays held, and the page says why, until the next learner
+        assert store.robot_status(run_id=run_id).actor_state == ActorState.LEARNER_GONE and actor.poll() is None
+        # the next learner takes the run over (its heartbeat went stale) and drives the same actor to the end
+        quick = settings.model_copy(update={"stale_heartbeat_seconds": 1.0})
+        time.sleep(1.5)
+        assert learn_once_beside(quick, lambda stop: stop.wait()) == 0
+        assert store.get_run(run_id=run_id).status == RunStatus.FINISHED
+        assert store.get_run(run_id=run_id).step == config.total_steps
+        output = actor.communicate(timeout=30)[0].decode()
+    finally:
+        done.set()
+        for process in (learner, actor):
+            if process.poll() is None:
+                process.kill()
+        output = output or actor.communicate(timeout=30)[0].decode()
+        learner.wait(timeout=30)
+        learner_log.close()
+        print("actor:", output, "learner:", (settings.data_dir / "learner.log").read_text(), sep="\n")
+    assert actor.returncode == 0, output
+    assert f"arm {ActorState.LEARNER_GONE}" in output
+    assert "run finished" in output
+    assert store.robot_status(run_id=run_id).actor_state == ActorState.CLOSED
+
+
+def reset_and_answer(store: Store, run_id: int, done: threading.Event) -> None:
+    """A person at the page: Ready whenever a reset is asked for, every query answered truthfully."""
+    while not done.is_set():
+        if store.robot_status(run_id=run_id).reset_needed:
+            store.scene_ready(run_id=run_id)
+        for query in store.pending_queries(run_id=run_id):
+            store.answer_query(query_id=query.id, success=bool(query.ground_truth_success), labeler="oracle")
+        time.sleep(0.02)
