@@ -3,6 +3,8 @@ real-time actor, trained with the real-robot preset, reset by an automated perso
 
     python bench/robot_standin.py --seed 0                 # one seed to 6.2K env steps (about 21 minutes)
     python bench/robot_standin.py --seed 0 --steps 600     # a short look at the timing figures
+    python bench/robot_standin.py --seed 0 --remote        # the actor as `raq actor` (remote_actor): the link
+                                                           # through the database and the checkpoint store
 
 It starts `raq serve`, `raq oracle` and one learner (`raq learn --once`) on a fresh SQLite database, with 80 goal
 photos from `raq goals` at 84x84 and `TrainConfig.real_robot()` on `robot.standin:PusherStandIn-v0` (a person's
@@ -124,6 +126,7 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--steps", type=int, default=TARGET_STEPS, help="env steps to train for")
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--remote", action="store_true", help="the actor as its own `raq actor` (remote_actor)")
     parser.add_argument("--evaluate", nargs=3, metavar=("POLICY", "OUT", "DONE"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.evaluate:
@@ -141,7 +144,9 @@ def main() -> int:
     goal_set_id = add_simulated_goal_set(
         store, task="pusher", name="stand-in goals", count=REAL_ROBOT_GOAL_IMAGES, image_size=84
     )
-    config = TrainConfig.real_robot(env_id=STANDIN, seed=args.seed, total_steps=args.steps, eval_every=500)
+    config = TrainConfig.real_robot(
+        env_id=STANDIN, seed=args.seed, total_steps=args.steps, eval_every=500, remote_actor=args.remote
+    )
     run = store.create_run(
         name=f"stand-in seed {args.seed}", env_id=STANDIN, algorithm=config.algorithm, config=config.to_dict(),
         seed=args.seed, goal_set_id=goal_set_id, total_steps=args.steps,
@@ -153,7 +158,7 @@ def main() -> int:
     for name in ("RAQ_DATABASE_URL", "DATABASE_URL"):
         env.pop(name, None)
     raq = [sys.executable, "-m", "cli"]
-    logs = {key: (out / f"{key}.log").open("w") for key in ("serve", "oracle", "learn", "evaluate")}
+    logs = {key: (out / f"{key}.log").open("w") for key in ("serve", "oracle", "learn", "evaluate", "actor")}
     evaluations, done_file = out / "evaluations.jsonl", out / "evaluation-done"
     evaluations.unlink(missing_ok=True)
     done_file.unlink(missing_ok=True)
@@ -161,7 +166,7 @@ def main() -> int:
     processes = [subprocess.Popen(raq + ["serve", "--port", str(port)], env=env, stdout=logs["serve"],
                                   stderr=subprocess.STDOUT)]  # fmt: skip
     done, presses = threading.Event(), []
-    figures: dict[str, object] = {"seed": args.seed, "steps": args.steps, "env_id": STANDIN}
+    figures: dict[str, object] = {"seed": args.seed, "steps": args.steps, "env_id": STANDIN, "remote": args.remote}
     started = time.monotonic()
     try:
         wait_for_health(url)
@@ -169,6 +174,9 @@ def main() -> int:
         processes.append(subprocess.Popen(oracle, env=env, stdout=logs["oracle"], stderr=subprocess.STDOUT))
         evaluate = [sys.executable, __file__, "--evaluate", str(policy_file), str(evaluations), str(done_file)]
         processes.append(subprocess.Popen(evaluate, env=env, stdout=logs["evaluate"], stderr=subprocess.STDOUT))
+        if args.remote:  # on the robot's host, sharing only the database and the checkpoint store
+            actor = raq + ["actor", "--run", str(run.id)]
+            processes.append(subprocess.Popen(actor, env=env, stdout=logs["actor"], stderr=subprocess.STDOUT))
         learner = subprocess.Popen(raq + ["learn", "--once"], env=env, stdout=logs["learn"], stderr=subprocess.STDOUT)
         processes.append(learner)
         threading.Thread(target=resetter, args=(url, done, presses), daemon=True).start()
