@@ -80,8 +80,28 @@ def test_ready_needs_a_waiting_reset_and_counts_each(store: Store) -> None:
         assert _rows(store) == before
 
 
-def test_evaluate_now_asks_for_episodes_that_the_actor_takes_one_by_one(store: Store) -> None:
+def _run_with_actor(store: Store) -> int:
+    """A run whose actor has reported (it drives the robot in real time)."""
     run_id = _run(store)
+    store.report_actor(run_id=run_id, state="acting")
+    return run_id
+
+
+def test_evaluate_now_is_refused_before_an_actor_drives_the_run(store: Store) -> None:
+    run_id = _run(store)
+    events = len(store.events(run_id=run_id))
+    with pytest.raises(Conflict, match="no actor drives this run's robot"):
+        store.request_evaluation(run_id=run_id, episodes=2)
+    assert _rows(store) == [] and len(store.events(run_id=run_id)) == events
+    store.request_robot_stop(run_id=run_id)  # a person's row, still no actor
+    before = _rows(store)
+    with pytest.raises(Conflict, match="no actor drives this run's robot"):
+        store.request_evaluation(run_id=run_id, episodes=2)
+    assert _rows(store) == before
+
+
+def test_evaluate_now_asks_for_episodes_that_the_actor_takes_one_by_one(store: Store) -> None:
+    run_id = _run_with_actor(store)
     asked = store.request_evaluation(run_id=run_id, episodes=2)
     assert (asked.evaluation_pending, asked.evaluation_round) == (2, 1)
     assert store.robot_status(run_id=run_id) == asked
@@ -101,7 +121,7 @@ def test_evaluate_now_asks_for_episodes_that_the_actor_takes_one_by_one(store: S
 
 
 def test_two_actors_taking_the_last_episode_at_once_take_it_once(store: Store) -> None:
-    run_id = _run(store)
+    run_id = _run_with_actor(store)
     store.request_evaluation(run_id=run_id, episodes=3)
     taken: list[int | None] = []
     barrier = threading.Barrier(6)
@@ -121,10 +141,11 @@ def test_two_actors_taking_the_last_episode_at_once_take_it_once(store: Store) -
 
 @pytest.mark.parametrize("episodes", [0, -1, EVALUATION_EPISODES_MAX + 1, True, 2.5, "3"])
 def test_evaluate_now_refuses_a_bad_count_and_changes_nothing(store: Store, episodes: object) -> None:
-    run_id = _run(store)
+    run_id = _run_with_actor(store)
+    before = _rows(store)
     with pytest.raises(InvalidInput, match=f"from 1 to {EVALUATION_EPISODES_MAX}"):
         store.request_evaluation(run_id=run_id, episodes=episodes)  # type: ignore[arg-type]
-    assert _rows(store) == []
+    assert _rows(store) == before
     store.request_evaluation(run_id=run_id, episodes=1)
     store.take_evaluation_episode(run_id=run_id)
     before = _rows(store)
@@ -281,6 +302,9 @@ def test_ready_is_409_without_a_waiting_reset_and_counts_after_one(client: TestC
 
 def test_evaluate_now_is_202_then_409_while_pending_and_422_for_a_bad_count(client: TestClient, store: Store) -> None:
     run_id = _run(store)
+    no_actor = client.post(f"/api/runs/{run_id}/robot/evaluate", json={"episodes": 3})
+    assert no_actor.status_code == 409 and "no actor drives" in no_actor.json()["detail"]
+    store.report_actor(run_id=run_id, state="acting")
     accepted = client.post(f"/api/runs/{run_id}/robot/evaluate", json={"episodes": 3})
     assert accepted.status_code == 202
     assert accepted.json()["run_id"] == run_id

@@ -142,22 +142,22 @@ class RobotStore(StoreBase):
     def request_evaluation(self, *, run_id: int, episodes: int) -> RobotStatus:
         """A person's Evaluate now: the actor runs the next `episodes` episodes with the policy's mean action, as
         round evaluation_round + 1; an event says so. InvalidInput unless 1 <= episodes <= EVALUATION_EPISODES_MAX;
-        Conflict while an earlier request still has episodes pending (nothing changes then)."""
+        Conflict while an earlier request still has episodes pending, or before an actor has reported (a run in
+        lockstep has none); nothing changes then."""
         if isinstance(episodes, bool) or not isinstance(episodes, int) or not 1 <= episodes <= EVALUATION_EPISODES_MAX:
             raise InvalidInput(f"episodes must be a whole number from 1 to {EVALUATION_EPISODES_MAX}, not {episodes!r}")
         values = {"evaluation_pending": episodes, "evaluation_round": RobotControl.evaluation_round + 1}
         with self.writing() as session:
-            idle = RobotControl.evaluation_pending <= 0
+            idle = (RobotControl.evaluation_pending <= 0) & RobotControl.actor_seen_at.is_not(None)
             status = self._update(session, run_id=run_id, values=values, condition=idle)
-            if status is None:  # pending still, or no row yet
-                current = self._controls_row(session, run_id=run_id, create=True)
-                if current.evaluation_pending > 0:
-                    raise Conflict(
-                        f"an evaluation is under way: {current.evaluation_pending} episodes of round "
-                        f"{current.evaluation_round} not begun yet"
-                    )
-                status = self._update(session, run_id=run_id, values=values, condition=idle)
-                assert status is not None  # the row exists now, under this transaction
+            if status is None:  # no actor yet (no row, or a row a person made), or one pending still
+                current = self._controls_row(session, run_id=run_id, create=False)  # (NotFound for an unknown run)
+                if current.actor_seen_at is None:
+                    raise Conflict("no actor drives this run's robot: Evaluate now is for runs in real time")
+                raise Conflict(
+                    f"an evaluation is under way: {current.evaluation_pending} episodes of round "
+                    f"{current.evaluation_round} not begun yet"
+                )
             count = f"{episodes} episode" + ("s" if episodes > 1 else "")
             message = f"evaluate now: round {status.evaluation_round}, {count} with the policy's mean action"
             session.add(Event(run_id=run_id, message=message))
