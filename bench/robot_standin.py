@@ -48,6 +48,8 @@ EVAL_EPISODES = 10
 """Episodes per evaluation of a written policy (by the env's ground truth)."""
 TARGET_RATE, TARGET_STEPS, TARGET_QUERIES = 0.9, 6_200, 25
 """The paper's real-robot pusher: 90% success within 6.2K env steps and 25 queries."""
+KILL_BEFORE_END = 100
+"""The learner is killed this many env steps before its last (a learner that lags its actor may finish soon after)."""
 STOP_AT = (1_500, 3_000, 4_500)
 """Env steps at which Stop robot is pressed (and Resume 2 s later)."""
 
@@ -189,7 +191,7 @@ def main() -> int:
             time.sleep(2.0)
             request(f"{url}/api/runs/{run.id}/robot/resume", "POST")
             print(f"step {stop_step}: stop honoured in {stops[-1]} s; resumed", flush=True)
-        while store.get_run(run_id=run.id).step < args.steps - 1 and learner.poll() is None:
+        while store.get_run(run_id=run.id).step < args.steps - KILL_BEFORE_END and learner.poll() is None:
             time.sleep(1.0)
         learner.send_signal(signal.SIGKILL)
         held = wait_for_state(url, run.id, "held safe: learner gone", timeout=10)
