@@ -8,6 +8,7 @@ a summary line: env steps to first reach 90% eval success, queries asked, wall t
 """
 
 import argparse
+import contextlib
 import csv
 import json
 import os
@@ -117,7 +118,8 @@ def watch(
                 flush=True,
             )
             next_report = time.monotonic() + 60
-        time.sleep(2)
+        with contextlib.suppress(subprocess.TimeoutExpired):  # every 2 s, and at once when the learner ends
+            learner.wait(timeout=2)
     return None
 
 

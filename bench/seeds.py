@@ -130,7 +130,9 @@ def run_seeds(args: argparse.Namespace, seeds: list[int], target: float, budget:
                 env={**os.environ, "PYTHONPATH": str(ROOT)},
             )  # fmt: skip
             print(f"seed {seed}: started in {folder}", flush=True)
-        time.sleep(5)
+        deadline = time.monotonic() + 5  # look again in 5 s, or as soon as a seed's run ends
+        while time.monotonic() < deadline and all(process.poll() is None for process in running.values()):
+            time.sleep(0.1)
         for seed, process in list(running.items()):
             if process.poll() is not None:
                 del running[seed]

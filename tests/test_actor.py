@@ -1,6 +1,6 @@
 """The real-time actor: the env steps at its own rate in its own process while the learner trains beside it;
 a person's reset before each episode, Stop robot and Resume through the store; the watchdog holds the arm when
-the learner is killed."""
+the learner is killed or the database goes away."""
 
 import functools
 import os
@@ -9,17 +9,22 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 from conftest import create_run, learn_once_beside
+from pg_server import PostgresServer
+from recording_arm import ENV_ID, LOG_VARIABLE, recorded
 from test_learner_run import tiny_config
 
+from app.migrate import upgrade
 from contract.config import TrainConfig
-from contract.settings import Settings
+from contract.settings import Settings, get_settings
 from contract.store import RunStatus, Store
 from learner.actor import ActorState
 from learner.checkpoint import checkpoint_path, load_checkpoint
+from learner.testing_envs import add_dot_goals
 from learner.worker import work
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -148,3 +153,68 @@ def test_a_killed_learner_leaves_the_arm_held_safe_within_the_watchdog_time(
             learner.kill()
         output = learner.communicate(timeout=30)[0].decode()
     assert f"arm {ActorState.LEARNER_GONE}" in output
+
+
+def wait_for(condition: Callable[[], bool], seconds: float, what: str) -> None:
+    """Poll `condition` until it holds; fail after `seconds`."""
+    deadline = time.monotonic() + seconds
+    while not condition():
+        assert time.monotonic() < deadline, f"waited {seconds:g} s for {what}"
+        time.sleep(0.01)
+
+
+def test_a_database_outage_holds_the_arm_safe_until_a_person_resumes(tmp_path: Path) -> None:
+    """PostgreSQL stopped under a real-time run: the arm is held within the watchdog time and sends no action;
+    once the database is back the run's robot shows stopped, and only Resume lets the arm move again."""
+    log = tmp_path / "arm.log"
+    config = real_time_config(
+        env_id=ENV_ID, control_hz=10.0, total_steps=100_000, reset_every_episode=False, episode_steps=1000,
+    )  # fmt: skip
+    limit = config.watchdog_seconds
+
+    def times(kind: str, after: float = 0.0) -> list[float]:
+        return [at for what, at in recorded(log) if what == kind and at > after]
+
+    with pytest.MonkeyPatch.context() as patch, PostgresServer.started() as server:
+        patch.setenv(LOG_VARIABLE, str(log))  # (the actor process inherits both)
+        patch.setenv("RAQ_ENV_MODULES", "learner.testing_envs,recording_arm")
+        get_settings.cache_clear()
+        upgrade(server.url)
+        store = Store(server.url)
+        run_id = create_run(store, add_dot_goals(store), config)
+        settings = Settings(data_dir=tmp_path, database_url=server.url, stale_heartbeat_seconds=60.0)
+        learner = threading.Thread(target=work, args=(settings,), kwargs={"worker_name": "w", "once": True})
+        learner.start()
+        down = False
+        try:
+            wait_for(lambda: len(times("action")) >= 5, 120, "the arm to move")
+            outage = time.monotonic()
+            server.stop()
+            down, stopped = True, time.monotonic()
+            wait_for(lambda: bool(times("hold")), limit + 5, "the arm to be held")
+            held = times("hold")[0]
+            assert outage < held < stopped + limit + 0.5, (held - stopped, limit)  # in time, and not before
+            time.sleep(0.5)  # away a while longer
+            server.start()
+            down = False
+            wait_for(lambda: store.robot_status(run_id=run_id).stop_requested, 15, "the robot to be marked stopped")
+            time.sleep(0.5)  # the database is back, the robot stopped: the arm stays still
+            resumed = time.monotonic()
+            assert times("action", after=held) == []  # none while the database was away, nor since
+            store.resume_robot(run_id=run_id)
+            wait_for(lambda: bool(times("action", after=resumed)), 15, "the arm to move after Resume")
+            assert times("reset", after=held)[0] < times("action", after=held)[0]  # a new episode began
+            acting = lambda: store.robot_status(run_id=run_id).actor_state == ActorState.ACTING  # noqa: E731
+            wait_for(acting, 5, "the robot to show acting")
+            held_event = f"robot: {ActorState.DATABASE_GONE}"
+            events = lambda: [event.message for event in store.events(run_id=run_id, limit=1000)]  # noqa: E731
+            wait_for(lambda: held_event in events(), 60, "the run's events to tell of the hold")
+        finally:
+            if down:  # (a failed check: the learner is let go all the same)
+                server.start()
+            store.request_stop(run_id=run_id)
+            learner.join(timeout=180)
+        run = store.get_run(run_id=run_id)
+        assert run.status == RunStatus.STOPPED, run.status_reason  # the actor never failed
+        store.dispose()
+    get_settings.cache_clear()

@@ -24,7 +24,7 @@ from learner.testing_envs import add_dot_goals
 
 CONFIG = TrainConfig(
     env_id="learner.testing_envs:DotReach-v0", algorithm="vice_raq", image_size=16, conv_filters=4, hidden_dim=32,
-    batch_size=16, classifier_batch_size=8, total_steps=1500, episode_steps=25, initial_random_steps=50,
+    batch_size=16, classifier_batch_size=8, total_steps=500, episode_steps=25, initial_random_steps=50,
     epoch_steps=50, classifier_steps=2, query_every=50, query_budget=25, eval_every=500, eval_episodes=2,
     checkpoint_every=500, log_every=50, display_size=32, rollout_size=16, replay_capacity=2000, heartbeat_seconds=0.2,
     query_candidates=4,
@@ -98,7 +98,7 @@ def run_through_blinks(database_url: str, tmp_path: Path, blink: Blink, blinks: 
         try:
             blinked_at: list[int] = []
             for index in range(blinks):
-                wait_until(lambda i=index: step_of(store, run.id) >= 150 + 300 * i, learner, log_path)
+                wait_until(lambda i=index: step_of(store, run.id) >= 100 + 125 * i, learner, log_path)
                 blink(lambda: expect_unavailable(server.url, run.id))
                 blinked_at.append(step_of(store, run.id))
             wait_until(lambda: status_of(store, run.id) not in RunStatus.ACTIVE, learner, log_path, finished=True)
@@ -191,7 +191,7 @@ def small_disk(tmp_path: Path) -> Iterator[Path]:
         subprocess.run(["umount", "-l", str(mount)], check=False)
 
 
-def fill_then_empty(disk: Path, probe: Callable[[], None], seconds: float = 4.0) -> None:
+def fill_then_empty(disk: Path, probe: Callable[[], None], seconds: float = 2.5) -> None:
     """Fill the disk to its last byte, probe the server and keep it full for a while, then empty it."""
     filler = disk / "filler"
     with filler.open("wb", buffering=0) as file:

@@ -1,0 +1,62 @@
+"""A robot for the watchdog's tests: DotReach's dot behind the robot contract (robot.base.RobotEnv), which writes
+every action it sends, every reset and every hold to a log with its time.
+
+The log is the file that RECORDING_ARM_LOG names (nothing is written without it), one line per event:
+"<what> <time.monotonic()>", so a test reads, from its own process, when the actor's arm moved and when it was
+held (Linux's monotonic clock is the same in every process). `make("recording_arm:RecordingArm-v0")` with
+RAQ_ENV_MODULES listing `recording_arm` and this folder on the path.
+"""
+
+import os
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+from learner.testing_envs import DotReach
+from robot.base import RobotEnv
+
+LOG_VARIABLE = "RECORDING_ARM_LOG"
+ENV_ID = "recording_arm:RecordingArm-v0"
+
+
+class RecordingArm(RobotEnv):
+    control_hz = 10.0
+    needs_person_reset = False
+
+    def __init__(self, image_size: int = 16, render_size: int = 32, render_mode: str = "rgb_array") -> None:
+        super().__init__(action_dim=2, image_size=image_size, display_size=render_size)
+        self.dot = DotReach(obs_size=image_size, render_size=render_size)
+        self.log = os.environ.get(LOG_VARIABLE)
+
+    def _record(self, what: str) -> None:
+        if self.log:
+            with open(self.log, "a") as file:
+                file.write(f"{what} {time.monotonic()!r}\n")
+
+    def read_camera(self) -> np.ndarray:
+        return self.dot._draw(48)
+
+    def send_action(self, action: np.ndarray) -> None:
+        self._record("action")
+        self.dot.step(action)
+
+    def reset_scene(self) -> None:
+        self.dot.reset(seed=int(self.np_random.integers(2**31)))
+        self._record("reset")
+
+    def hold_safe(self) -> None:
+        self._record("hold")
+
+
+def recorded(log: Path) -> list[tuple[str, float]]:
+    """The log's events in order: (what, monotonic time)."""
+    if not log.exists():
+        return []
+    lines = log.read_text().split("\n")[:-1]  # (a line still being written has no newline yet)
+    return [(what, float(at)) for what, _, at in (line.partition(" ") for line in lines)]
+
+
+if "RecordingArm-v0" not in gym.registry:
+    gym.register(id="RecordingArm-v0", entry_point="recording_arm:RecordingArm", max_episode_steps=1000)
