@@ -92,6 +92,9 @@ class Controls:
     """The Evaluate now round of the episode under way (None: a training episode)."""
     last_answer: float = field(default_factory=time.monotonic)
     """When the store last answered (monotonic)."""
+    asked_after: float = 0.0
+    """Only answers to reports sent after this moment (monotonic) set the controls: one sent before the actor marked
+    the robot stopped itself may still say "not stopped"."""
 
 
 # ====================================================================== the actor process
@@ -139,15 +142,17 @@ class _Actor:
             png = None
             if self.frame is not None and now - last_frame >= FRAME_SECONDS:
                 png, last_frame = encode_png(self.frame), now
+            asked = time.monotonic()
             try:
                 status = self.store.report_actor(run_id=self.settings.run_id, state=self.state, frame_png=png)
             except Exception:  # the store is unreachable: the watchdog counts from the last answer
                 pass
             else:
                 controls = self.controls
-                controls.stop_requested, controls.reset_count = status.stop_requested, status.reset_count
-                controls.evaluation_pending = status.evaluation_pending
                 controls.last_answer = time.monotonic()
+                if asked >= controls.asked_after:
+                    controls.stop_requested, controls.reset_count = status.stop_requested, status.reset_count
+                    controls.evaluation_pending = status.evaluation_pending
                 if status.stop_requested:
                     self.wake.set()
             self.done.wait(CONTROL_POLL_SECONDS)
@@ -176,12 +181,12 @@ class _Actor:
         if self.exit_reason is not None:
             return self.exit_reason
         now, limit = time.monotonic(), float(self.config.watchdog_seconds)
+        if now - self.controls.last_answer > limit:  # (first: an actor linked through the store loses both)
+            return ActorState.DATABASE_GONE
         if now - self.last_keepalive > limit:
             self._read_learner()  # (keep-alives may be waiting unread after a long reset)
             if self.exit_reason is not None or time.monotonic() - self.last_keepalive > limit:
                 return self.exit_reason or ActorState.LEARNER_GONE
-        if now - self.controls.last_answer > limit:
-            return ActorState.DATABASE_GONE
         return None
 
     def _load_policy(self, modules: dict[str, dict[str, Any]]) -> None:
@@ -303,7 +308,9 @@ class _Actor:
         while True:
             with contextlib.suppress(Exception):
                 self.store.request_robot_stop(run_id=self.settings.run_id)
-                self.controls.stop_requested, self.controls.last_answer = True, time.monotonic()
+                controls = self.controls
+                controls.asked_after = controls.last_answer = time.monotonic()
+                controls.stop_requested = True
                 return
             self._read_learner()
             if self._watchdog() in EXIT_REASONS:
