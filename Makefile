@@ -9,6 +9,8 @@ DEV_STAMP := $(VENV)/.installed-dev
 # PostgreSQL for the tests of the store on PostgreSQL.
 RUN_PACKAGES := libegl1 libegl-mesa0 libgl1 libgles2 libosmesa6
 TEST_PACKAGES := chromium docker-compose postgresql
+# The suite runs on two pytest workers (pytest-xdist): most tests wait on servers, learners and subprocesses.
+PYTEST_ARGS ?= -n 2
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 
