@@ -210,7 +210,9 @@ def serve_remote(store: Store, *, run_id: int, checkpoint_base: str, stop: threa
     state = WAITING_FOR_LEARNER  # (after a learner died: "held safe: learner gone" until the next one)
     try:
         while not stop.is_set():
-            ended = _wait_for_learner(store, run_id=run_id, announcement=announcement, state=state, stop=stop)
+            ended = _wait_for_learner(
+                store, run_id=run_id, announcement=announcement, state=state, limit=config.watchdog_seconds, stop=stop
+            )
             if ended is not None:
                 return ended
             link = StoreLink(store, run_id=run_id, policy_url=policy_url, hz=hz)
@@ -230,11 +232,10 @@ def serve_remote(store: Store, *, run_id: int, checkpoint_base: str, stop: threa
 
 
 def _wait_for_learner(
-    store: Store, *, run_id: int, announcement: dict[str, Any], state: str, stop: threading.Event
+    store: Store, *, run_id: int, announcement: dict[str, Any], state: str, limit: float, stop: threading.Event
 ) -> str | None:
-    """Announce the actor and report it in `state` until a live learner opens the link (None), or why not to wait:
-    the run ended, or `stop`."""
-    limit = TrainConfig().watchdog_seconds
+    """Announce the actor and report it in `state` until a learner whose keep-alive is younger than `limit`
+    seconds opens the link (None), or why not to wait: the run ended, or `stop`."""
     announced = False
     while not stop.is_set():
         try:
@@ -269,7 +270,7 @@ class RemoteActor:
         self.display: np.ndarray | None = None
         self.buffer: deque[tuple] = deque()
         self.cursor, self.fetched_at = 0, -1.0
-        store.open_actor_link(run_id=run_id, start_step=None)
+        self.policy_version = store.open_actor_link(run_id=run_id, start_step=None).policy_version
         self.keepalive = threading.Thread(target=self._keep_alive, name="link-keepalive", daemon=True)
         self.keepalive.start()
         deadline = time.monotonic() + ACTOR_WAIT_SECONDS
@@ -304,9 +305,8 @@ class RemoteActor:
 
     def send_policy(self, modules: dict[str, dict[str, Any]]) -> None:
         """pi's weights to the checkpoint store, then their version to the actor."""
-        version = self.store.actor_link(run_id=self.run_id).policy_version + 1
-        save_checkpoint(self.policy_url, {"version": version, "modules": modules})
-        self.store.publish_actor_policy(run_id=self.run_id)
+        save_checkpoint(self.policy_url, {"version": self.policy_version + 1, "modules": modules})
+        self.policy_version = self.store.publish_actor_policy(run_id=self.run_id)
 
     def next_message(self, timeout: float) -> ActorStep | None:
         """The actor's next message within `timeout` seconds, or None."""

@@ -14,8 +14,8 @@ from typing import Any
 
 from sqlalchemy import delete, insert, select
 
-from contract.store.base import StoreBase
-from contract.store.models import ActorMessage, RobotControl
+from contract.store.base import StoreBase, found
+from contract.store.models import ActorMessage, RobotControl, Run
 from contract.store.robots import RobotStore
 
 TAKE_MAX = 256
@@ -89,17 +89,17 @@ class ActorLinkStore(RobotStore, StoreBase):
 
     def actor_link(self, *, run_id: int) -> ActorLink:
         """The link's state (the defaults before anyone used it); NotFound for an unknown run."""
-        self.robot_status(run_id=run_id)  # NotFound for an unknown run
-        now = self._db_now()
         with self.reading() as session:
             row = session.execute(
                 select(
                     RobotControl.start_step, RobotControl.learner_closed, RobotControl.policy_version,
-                    RobotControl.learner_seen_at, RobotControl.actor_spaces, RobotControl.actor_seen_at, now,
+                    RobotControl.learner_seen_at, RobotControl.actor_spaces, RobotControl.actor_seen_at,
+                    self._db_now(),
                 ).where(RobotControl.run_id == run_id)
             ).one_or_none()  # fmt: skip
-        if row is None:
-            return ActorLink(None, False, 0, None, None, None, None)
+            if row is None:
+                found(session.scalar(select(Run.id).where(Run.id == run_id)), f"run {run_id}")
+                return ActorLink(None, False, 0, None, None, None, None)
         start_step, closed, version, learner_seen_at, spaces, actor_seen_at, db_now = row
         db_now = _as_datetime(db_now)
         return ActorLink(
