@@ -29,7 +29,8 @@ INT_MAXIMA: dict[str, int] = {
 }  # fmt: skip
 FLOAT_MAXIMA: dict[str, float] = {
     "actor_lr": 1.0, "critic_lr": 1.0, "alpha_lr": 1.0, "classifier_lr": 1.0, "initial_alpha": 1e6,
-    "mixup_alpha": 100.0, "heartbeat_seconds": 3600.0, "no_answer_share": 1.0, "control_hz": 1000.0,
+    "mixup_alpha": 100.0, "classifier_label_smoothing": 1.0, "classifier_gradient_penalty": 1e6,
+    "heartbeat_seconds": 3600.0, "no_answer_share": 1.0, "control_hz": 1000.0,
     "policy_sync_seconds": 3600.0, "watchdog_seconds": 60.0,
 }  # fmt: skip
 RETIRED_FIELDS = frozenset({"classifier_beside_updates"})
@@ -157,6 +158,10 @@ class ClassifierConfig:
     """Environment steps per epoch: classifier training, answer reading and evaluation happen once each."""
     mixup_alpha: float = 1.0
     """Mixup lambda ~ Beta(alpha, alpha); 0 disables mixup."""
+    classifier_label_smoothing: float = 0.0
+    """Labels y -> y (1 - eps) + eps / 2 in f_psi's loss (SERL's VICE): bounds its logits, so the reward's scale."""
+    classifier_gradient_penalty: float = 0.0
+    """lambda of the zero-centred penalty lambda / 2 E|grad_x logit D(x~)|^2 on the mixed images; 0: none."""
     no_answer_share: float = 0.0
     """VICE-RAQ: share of classifier negatives drawn from "no" answers; 0: the paper's (replay only)."""
     naive_classifier_steps: int = 10_000
@@ -303,10 +308,9 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
             errors.append(("discount", "must be in (0, 1]"))
         if not 0 < self.tau <= 1:
             errors.append(("tau", "must be in (0, 1]"))
-        if self.mixup_alpha < 0:
-            errors.append(("mixup_alpha", "must not be negative"))
-        if self.no_answer_share < 0:
-            errors.append(("no_answer_share", "must not be negative"))
+        for name in ("mixup_alpha", "no_answer_share", "classifier_label_smoothing", "classifier_gradient_penalty"):
+            if getattr(self, name) < 0:
+                errors.append((name, "must not be negative"))
         if self.algorithm not in ALGORITHMS:
             errors.append(("algorithm", f"must be one of {', '.join(ALGORITHMS)}"))
         for name, choices in _choice_fields().items():

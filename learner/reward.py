@@ -188,9 +188,16 @@ class RewardModel:
         labels = torch.zeros(len(images), device=self.device)
         labels[:n_positive] = 1.0
         mixed_images, mixed_labels = mixup(images, labels, self.config.mixup_alpha, rng)
+        smoothing, penalty = self.config.classifier_label_smoothing, self.config.classifier_gradient_penalty
+        mixed_labels = mixed_labels * (1.0 - smoothing) + smoothing / 2
+        if penalty > 0:
+            mixed_images = mixed_images.detach().requires_grad_(True)
         with self.autocast():
             logits, _, _ = self.discriminator_logits(mixed_images, policy)
         loss = F.binary_cross_entropy_with_logits(logits, mixed_labels)
+        if penalty > 0:  # zero-centred (R1-style, Mescheder et al. 2018) at the mixed images; log pi is detached
+            (grads,) = torch.autograd.grad(logits.sum(), mixed_images, create_graph=True)
+            loss = loss + penalty / 2 * grads.float().pow(2).flatten(1).sum(1).mean()
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
         self.opt.step()

@@ -78,6 +78,33 @@ def test_classifier_separates_goals_from_negatives(algorithm: str) -> None:
         assert (test_goals > 0).mean() > 0.9 and (test_negatives < 0).mean() > 0.9
 
 
+def _trained_logits_and_input_gradient(**overrides: object) -> tuple[np.ndarray, float]:
+    """raq's f_psi after 200 steps at a high learning rate on separable goals and negatives: its logits on both
+    classes and the mean norm of its input gradient there."""
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    model = RewardModel(tiny(algorithm="raq", classifier_lr=3e-3, **overrides), rng)
+    goals, negatives = goal_like(rng, 64), replay_like(rng, 64)
+    for _ in range(200):
+        pick = rng.integers(0, 64, size=16)
+        model.update_classifier(goals[pick], negatives[pick], accuracy=False)
+    images = model.images(np.concatenate([goals, negatives])).requires_grad_(True)
+    (grads,) = torch.autograd.grad(model.net(images).sum(), images)
+    return model.logits(np.concatenate([goals, negatives])), grads.flatten(1).norm(dim=1).mean().item()
+
+
+def test_label_smoothing_bounds_the_logits_and_the_gradient_penalty_flattens_f_psi() -> None:
+    plain_logits, plain_gradient = _trained_logits_and_input_gradient()
+    smoothed_logits, _ = _trained_logits_and_input_gradient(classifier_label_smoothing=0.2)
+    penalised_logits, penalised_gradient = _trained_logits_and_input_gradient(classifier_gradient_penalty=10.0)
+    # eps = 0.2: the loss is least at |logit| = log(0.9 / 0.1) = 2.2; without it, the logits keep growing
+    assert np.abs(plain_logits).max() > 4.0
+    assert np.abs(smoothed_logits).max() < 3.0
+    assert smoothed_logits[:64].min() > 0 > smoothed_logits[64:].max()  # still a classifier
+    assert penalised_gradient < plain_gradient / 2
+    assert penalised_logits[:64].mean() > penalised_logits[64:].mean()
+
+
 @pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
 def test_mixup_mixes_images_and_labels_with_the_same_lambda(dtype: torch.dtype) -> None:
     images = torch.rand(8, 3, SIZE, SIZE).to(dtype)
