@@ -162,6 +162,9 @@ class ClassifierConfig:
     """Labels y -> y (1 - eps) + eps / 2 in f_psi's loss (SERL's VICE): bounds its logits, so the reward's scale."""
     classifier_gradient_penalty: float = 0.0
     """lambda of the zero-centred penalty lambda / 2 E|grad_x logit D(x~)|^2 on the mixed images; 0: none."""
+    reward_centering: bool = False
+    """r = f_psi(s') less f_psi's mean on 256 replay observations, taken after each epoch: the level that moves with
+    log pi in the AIRL form (f_psi ~ log pi + log-odds) stays out of the Q targets."""
     no_answer_share: float = 0.0
     """VICE-RAQ: share of classifier negatives drawn from "no" answers; 0: the paper's (replay only)."""
     naive_classifier_steps: int = 10_000

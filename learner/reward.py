@@ -5,7 +5,8 @@ vice / vice_raq: AIRL discriminator D(s, a) = sigmoid(f_psi(s) - log pi(a|s)) (t
 raq / naive_classifier: plain sigmoid cross-entropy on f_psi(s).
 Mixup (Eq. mixup): lambda ~ Beta(alpha, alpha) per sample, each sample mixed with a random permutation of the
 combined batch, images and labels alike.
-The SAC reward is the logit f_psi(s') itself (no log pi, no normalisation). f_psi runs under the config's
+The SAC reward is the logit f_psi(s') itself (no log pi, no normalisation), or with `reward_centering` that logit
+less its replay mean (`center`). f_psi runs under the config's
 precision like the SAC networks (bf16 autocast: convs and hidden layers in bf16; weights, the last layer and the
 loss in fp32, so logits, rewards and query scores are not rounded to bf16).
 """
@@ -81,6 +82,8 @@ class RewardModel:
         self.answered_positives = np.zeros(shape, dtype=np.uint8)
         self.initial_negatives = np.zeros(shape, dtype=np.uint8)
         self.answered_negatives = np.zeros(shape, dtype=np.uint8)
+        self.offset = torch.zeros((), device=self.device)
+        """The reward's offset (0 unless `center` set it): r = f_psi(s') - offset; a device scalar the graph reads."""
         self.version = 0
 
     # ------------------------------------------------------------------ example sets
@@ -113,6 +116,18 @@ class RewardModel:
             out = [self.net(self.images(images[i : i + chunk])) for i in range(0, len(images), chunk)]
         return torch.cat(out).cpu().numpy() if out else np.zeros(0, dtype=np.float32)
 
+    def rewards_on_device(self, images: torch.Tensor) -> torch.Tensor:
+        """r = f_psi(s') - offset of uint8 NHWC device images, without a host sync (as `rewards` computes it)."""
+        return self.logits_on_device(images).float() - self.offset
+
+    def center(self, replay_images: np.ndarray) -> float:
+        """The offset set to f_psi's mean on these replay observations; a new version (every cached reward stale).
+        A constant taken from every reward of a task without terminal states shifts each Q by offset / (1 - gamma)
+        and leaves the policy as it was; what it removes is the Q targets' drift as f_psi's level follows log pi."""
+        self.offset.fill_(float(self.logits(replay_images).mean()))
+        self.version += 1
+        return self.offset.item()
+
     def logits_on_device(self, images: torch.Tensor) -> torch.Tensor:
         """f_psi (fp32 logits) of uint8 NHWC images already on the device, without gradients or a host sync."""
         with torch.no_grad(), self.autocast():
@@ -123,7 +138,7 @@ class RewardModel:
         stale = indices[replay.reward_version[indices] != self.version]
         if len(stale):
             stale = np.unique(stale)
-            replay.reward_cache[stale] = self.logits(replay.frames[replay.next_slot[stale]])
+            replay.reward_cache[stale] = self.logits(replay.frames[replay.next_slot[stale]]) - self.offset.item()
             replay.reward_version[stale] = self.version
         return replay.reward_cache[indices]
 
@@ -225,6 +240,7 @@ class RewardModel:
             "net": self.trainee.state_dict(),
             "opt": self.opt.state_dict(),
             "version": self.version,
+            "offset": self.offset.item(),
             "goals": torch.from_numpy(self.goals.copy()),
             "answered_positives": torch.from_numpy(self.answered_positives.copy()),
             "initial_negatives": torch.from_numpy(self.initial_negatives.copy()),
@@ -236,5 +252,6 @@ class RewardModel:
         self.trainee.load_state_dict(state["net"])
         self.opt.load_state_dict(state["opt"])
         self.version = int(state["version"]) + 1  # anything cached before the load is stale
+        self.offset.fill_(float(state.get("offset", 0.0)))  # (checkpoints written before the field: 0)
         for name in ("goals", "answered_positives", "initial_negatives", "answered_negatives"):
             setattr(self, name, state[name].numpy())

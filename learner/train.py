@@ -555,6 +555,7 @@ class Trainer:
         metrics = self._classifier_steps(steps)
         if metrics is None:
             return False
+        self._center_rewards(metrics)
         self._record_classifier_metrics(metrics)
         return True
 
@@ -577,7 +578,14 @@ class Trainer:
         assert self.reward_model is not None
         self.reward_model.publish()
         if metrics is not None:
+            self._center_rewards(metrics)
             self._record_classifier_metrics(metrics)
+
+    def _center_rewards(self, metrics: dict[str, float]) -> None:
+        """With `reward_centering`: the new f_psi's mean on uniform replay observations taken from its rewards."""
+        if self.config.reward_centering and self.reward_model is not None:
+            frames = self.replay.sample_next_frames(self.rng, 256)
+            metrics["reward/offset"] = self.reward_model.center(frames)
 
     def _record_classifier_metrics(self, metrics: dict[str, float]) -> None:
         """An epoch's last classifier step's metrics with f_psi's view of the newest observations and of the

@@ -264,7 +264,7 @@ class DeviceUpdates:
         if self.reward_model is None:
             reward = batch["success"]
         else:  # r = f_psi(s') of the un-shifted s', as the host path's cache computes it
-            reward = self.reward_model.logits_on_device(batch["next_obs_unshifted"]).float()
+            reward = self.reward_model.rewards_on_device(batch["next_obs_unshifted"])
         agent = self.agent
         metrics = agent.update_tensors(
             agent.images(batch["obs"]), batch["action"], reward, agent.images(batch["next_obs"]), batch["not_done"]

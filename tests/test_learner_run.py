@@ -133,6 +133,25 @@ def test_every_algorithm_runs(
     assert ("replay sampled on cpu" in setup_event) == (pipeline == "device"), setup_event
 
 
+@pytest.mark.parametrize("pipeline", ["host", "device"])
+def test_a_run_with_f_psi_regularised_and_its_rewards_centered(
+    setup: tuple[Settings, Store, int], pipeline: str
+) -> None:
+    """Label smoothing, the gradient penalty and reward centering together: the run finishes, and every epoch
+    records the offset taken from the rewards."""
+    settings, store, goal_set_id = setup
+    config = tiny_config(
+        total_steps=150, checkpoint_every=1000, replay_pipeline=pipeline, classifier_label_smoothing=0.2,
+        classifier_gradient_penalty=10.0, reward_centering=True,
+    )  # fmt: skip
+    run_id = create_run(store, goal_set_id, config)
+    assert work(settings, worker_name="w", once=True) == 0
+    run = store.get_run(run_id=run_id)
+    assert run.status == RunStatus.FINISHED, run.status_reason
+    offsets = [metric.value for metric in store.metrics(run_id=run_id) if metric.name == "reward/offset"]
+    assert len(offsets) == 150 // config.epoch_steps and all(value != 0.0 for value in offsets)
+
+
 def test_failed_run_reports_the_reason(setup: tuple[Settings, Store, int]) -> None:
     settings, store, _ = setup
     run_id = create_run(store, None, tiny_config(algorithm="vice"))

@@ -364,6 +364,24 @@ def test_reward_cache_is_exact_per_classifier_version() -> None:
     np.testing.assert_allclose(model.rewards(replay, indices), model.logits(frames[indices + 1]), rtol=1e-5)
 
 
+def test_centered_rewards_are_f_psi_less_its_replay_mean_on_both_paths_and_survive_a_checkpoint() -> None:
+    rng = np.random.default_rng(0)
+    model, replay, frames = raq_model_and_replay(rng, capacity=50, transitions=20)
+    model.update_classifier(goal_like(rng, 8), replay_like(rng, 8))
+    indices = np.arange(20)
+    before = model.rewards(replay, indices).copy()
+    offset = model.center(frames[1:])
+    assert offset == pytest.approx(float(model.logits(frames[1:]).mean()), abs=1e-5)
+    centered = model.rewards(replay, indices)  # the cache of the uncentered rewards is stale now
+    np.testing.assert_allclose(centered, before - offset, atol=1e-5)
+    assert abs(float(centered.mean())) < 1e-4  # these are the very frames the mean was taken over
+    on_device = model.rewards_on_device(torch.from_numpy(frames[indices + 1]))
+    np.testing.assert_allclose(on_device.numpy(), centered, atol=1e-5)
+    restored = RewardModel(model.config, np.random.default_rng(1))
+    restored.load_state_dict(model.state_dict())
+    np.testing.assert_allclose(restored.rewards(replay, indices), centered, atol=1e-5)
+
+
 def test_an_unpublished_classifier_step_leaves_the_live_f_psi_and_its_rewards_as_they_were() -> None:
     """Steps with publish=False train the trainee only: rewards and logits (the live f_psi) and the version stay;
     publish makes the live f_psi the trainee's, and the cached rewards follow."""
