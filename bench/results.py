@@ -1,7 +1,15 @@
 """The learning results in docs/results/: one plot per task and the Markdown tables of docs/results.md.
 
+    .venv/bin/python bench/results.py --tables        # the seeds tables of README.md and docs/results.md, from
+                                                      # docs/results/seeds.csv (bench/seeds.py's rows)
+    .venv/bin/python bench/results.py --tables --check  # exits 1 when they are not what the CSV gives
     .venv/bin/python bench/results.py                 # writes docs/results/<task>.png, prints the tables
     .venv/bin/python bench/results.py --results DIR   # another folder of bench/learn.py outputs
+
+The seeds tables: per task the last row of each seed of VICE-RAQ in the CSV (bench/seeds.py replaces a row of the
+same commit and appends the others), counted against bench/seeds.py's TARGETS: a seed is within the target when
+it reached the eval success rate within the env-step budget, asking at most the query budget by then. The noisy
+oracle's rows (`bench/seeds.py --noise 0.1 --csv docs/results/seeds-noise.csv`) get their own table.
 
 Every folder `<task>-<method>-seed<N>/` (a CPU run) or `<task>-<method>-seed<N>-gpu/` (a GPU run) is one
 `bench/learn.py` run: its `curve.csv` (the run's metrics, a row every 250 env steps) and, where the script wrote
@@ -26,6 +34,14 @@ from pathlib import Path
 from PIL import Image, ImageDraw
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from bench.seeds import TARGETS as SEED_TARGETS  # noqa: E402
+
+SEEDS_CSV = ROOT / "docs" / "results" / "seeds.csv"
+NOISE_CSV = ROOT / "docs" / "results" / "seeds-noise.csv"
+TABLE_FILES = {"README.md": ("summary",), "docs/results.md": ("summary", "seeds", "noise")}
+"""Which generated tables each file holds, each between <!-- seeds:NAME --> and <!-- /seeds:NAME -->."""
 
 TARGETS: dict[str, tuple[float, int]] = {
     "pusher": (0.9, 30_000),
@@ -218,11 +234,120 @@ def plot_task(path: Path, task: str, runs: list[Run]) -> None:
     image.save(path)
 
 
+# ---------------------------------------------------------------------------------------------- seeds tables
+def seed_rows(path: Path) -> dict[str, list[dict[str, str]]]:
+    """Per task, the last VICE-RAQ row of each seed, by seed."""
+    if not path.exists():
+        return {}
+    last: dict[tuple[str, int], dict[str, str]] = {}
+    with path.open() as file:
+        for row in csv.DictReader(file):
+            if row["algorithm"] == "vice_raq" and row["task"] in SEED_TARGETS:
+                last[(row["task"], int(row["seed"]))] = row
+    by_task: dict[str, list[dict[str, str]]] = {}
+    for (task, _), row in sorted(last.items(), key=lambda item: (list(SEED_TARGETS).index(item[0][0]), item[0][1])):
+        by_task.setdefault(task, []).append(row)
+    return by_task
+
+
+def within_target(row: dict[str, str]) -> bool:
+    _, budget, max_queries = SEED_TARGETS[row["task"]]
+    steps = row["steps_to_target"]
+    return steps != "" and int(steps) <= budget and int(row["queries"]) <= max_queries
+
+
+def target_text(task: str) -> str:
+    target, budget, max_queries = SEED_TARGETS[task]
+    return f"{target:.0%} within {thousands(budget)}, ≤ {max_queries} queries"
+
+
+def summary_lines(by_task: dict[str, list[dict[str, str]]]) -> list[str]:
+    lines = [
+        "| task | target | seeds within it | median env steps to it | median queries (yes) | device | commit |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for task in SEED_TARGETS:
+        rows = by_task.get(task, [])
+        if not rows:
+            lines.append(f"| {task} | {target_text(task)} | not measured | - | - | - | - |")
+            continue
+        hit = [row for row in rows if within_target(row)]
+        steps = median([int(row["steps_to_target"]) for row in hit])
+        queries = median([int(row["queries"]) for row in hit])
+        yes = median([int(row["queries_yes"]) for row in hit])
+        seeds = ", ".join(row["seed"] for row in rows)
+        lines.append(
+            f"| {task} | {target_text(task)} | {len(hit)} of {len(rows)} (seeds {seeds}) "
+            f"| {thousands(steps) if steps is not None else '-'} "
+            f"| {f'{queries:g} ({yes:g})' if queries is not None else '-'} "
+            f"| {', '.join(sorted({row['device'] for row in rows}))} "
+            f"| {', '.join(sorted({row['commit'] for row in rows}))} |"
+        )
+    return lines
+
+
+def per_seed_lines(by_task: dict[str, list[dict[str, str]]]) -> list[str]:
+    lines = [
+        "| task | seed | steps to target | env steps run | queries (yes) | minutes | within the target | device "
+        "| commit |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for task, rows in by_task.items():
+        for row in rows:
+            steps = f"{int(row['steps_to_target']):,}" if row["steps_to_target"] else "not reached"
+            lines.append(
+                f"| {task} | {row['seed']} | {steps} | {int(row['env_steps']):,} "
+                f"| {row['queries']} ({row['queries_yes']}) "
+                f"| {row['minutes']} | {'yes' if within_target(row) else 'no'} | {row['device']} | {row['commit']} |"
+            )
+    if len(lines) == 2:
+        lines.append("| - | - | - | - | - | - | - | - | - |")
+    return lines
+
+
+def seeds_tables() -> dict[str, list[str]]:
+    """Each generated table's lines, by name."""
+    rows, noisy = seed_rows(SEEDS_CSV), seed_rows(NOISE_CSV)
+    return {"summary": summary_lines(rows), "seeds": per_seed_lines(rows), "noise": per_seed_lines(noisy)}
+
+
+def with_tables(text: str, tables: dict[str, list[str]], names: tuple[str, ...], path: str) -> str:
+    for name in names:
+        start, end = f"<!-- seeds:{name} -->", f"<!-- /seeds:{name} -->"
+        if start not in text or end not in text:
+            raise SystemExit(f"{path}: no {start} ... {end}")
+        before, rest = text.split(start, 1)
+        _, after = rest.split(end, 1)
+        text = before + start + "\n" + "\n".join(tables[name]) + "\n" + end + after
+    return text
+
+
+def write_tables(*, check: bool) -> int:
+    tables, stale = seeds_tables(), []
+    for name, names in TABLE_FILES.items():
+        path = ROOT / name
+        text = path.read_text()
+        fresh = with_tables(text, tables, names, name)
+        if fresh != text:
+            stale.append(name)
+            if not check:
+                path.write_text(fresh)
+    if check and stale:
+        print(f"not what {SEEDS_CSV.relative_to(ROOT)} gives: {', '.join(stale)} (run bench/results.py --tables)")
+        return 1
+    print(f"{'stale' if check else 'rewritten'}: {', '.join(stale) or 'none'}")
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--results", type=Path, default=ROOT / "docs" / "results")
     parser.add_argument("--no-plots", action="store_true")
+    parser.add_argument("--tables", action="store_true", help="rewrite the seeds tables from docs/results/seeds.csv")
+    parser.add_argument("--check", action="store_true", help="with --tables: only say whether they are stale")
     args = parser.parse_args()
+    if args.tables:
+        return write_tables(check=args.check)
     runs = [run for folder in sorted(args.results.iterdir()) if folder.is_dir() and (run := read_run(folder))]
     skipped = [folder.name for folder in sorted(args.results.iterdir()) if folder.is_dir() and read_run(folder) is None]
     if skipped:

@@ -76,3 +76,37 @@ def test_the_seeds_harness_runs_seeds_side_by_side_then_only_reports_them(tmp_pa
     assert again.returncode == 0 and "started" not in again.stdout
     with table.open() as handle:
         assert len(list(csv.DictReader(handle))) == 2
+
+
+def test_the_seeds_tables_are_made_from_the_csv(tmp_path: Path) -> None:
+    """A seed counts when it reached the target within the budget and the query budget; the last row of a seed
+    wins; the README and docs/results.md hold what the repository's CSV gives."""
+    sys.path.insert(0, str(ROOT))
+    from bench.results import per_seed_lines, seed_rows, summary_lines
+    from bench.seeds import CSV_COLUMNS
+
+    rows = [
+        ["pusher", "vice_raq", "0", "0.9", "", "20000", "4", "1", "20.0", "cpu", "aaa"],  # replaced below
+        ["pusher", "vice_raq", "0", "0.9", "12000", "12000", "3", "2", "11.0", "cpu", "bbb"],
+        ["pusher", "vice_raq", "1", "0.9", "16000", "16000", "30", "9", "15.0", "cpu", "bbb"],  # 30 > 25 queries
+        ["pusher", "vice_raq", "2", "0.9", "8000", "8000", "2", "2", "8.0", "cpu", "bbb"],
+        ["pusher", "vice", "3", "0.9", "8000", "8000", "0", "0", "8.0", "cpu", "bbb"],  # another method: left out
+        ["door", "vice_raq", "0", "0.9", "", "100000", "50", "0", "130.0", "cpu", "bbb"],
+    ]
+    path = tmp_path / "seeds.csv"
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(CSV_COLUMNS)
+        writer.writerows(rows)
+    by_task = seed_rows(path)
+    summary = summary_lines(by_task)
+    assert "| pusher | 90% within 20K, ≤ 25 queries | 2 of 3 (seeds 0, 1, 2) | 10K | 2.5 (2) | cpu | bbb |" in summary
+    assert "| door | 90% within 100K, ≤ 50 queries | 0 of 1 (seeds 0) | - | - | cpu | bbb |" in summary
+    assert "| picker | 80% within 100K, ≤ 50 queries | not measured | - | - | - | - |" in summary
+    seeds = per_seed_lines(by_task)
+    assert "| pusher | 1 | 16,000 | 16,000 | 30 (9) | 15.0 | no | cpu | bbb |" in seeds
+    assert "| door | 0 | not reached | 100,000 | 50 (0) | 130.0 | no | cpu | bbb |" in seeds
+    done = subprocess.run(
+        [sys.executable, "bench/results.py", "--tables", "--check"], cwd=ROOT, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
