@@ -21,6 +21,10 @@
 #                                            most 3.5 minutes), then, alone and while time is left, learner_speed (CUDA
 #                                            graphs, compiled) and loop_speed at 4 envs stepped in turn and in worker
 #                                            processes; all comes back in 5 files
+#   bash bench/gpu_check.sh table MINUTES    the seeds table: bench/seeds.py for each task in TASKS (default all three)
+#                                            over SEEDS (default "0-4"), every run side by side, each stopped at its
+#                                            target, its budget or MINUTES (resumable: run it again), rows in
+#                                            $OUT/seeds.csv (NOISE=0.1: the noisy oracle's runs instead)
 #   bash bench/gpu_check.sh compare MINUTES  the paper's comparison on the pusher: every reward method x seeds 0-2
 #                                            side by side, to 30K env steps each or MINUTES, then
 #                                            bench/compare.py --by-method (METHODS, SEEDS: fewer, to try it)
@@ -122,6 +126,20 @@ if [ "$phase" = door-sweep ]; then
   done
   wait
   collect
+  exit 0
+fi
+
+if [ "$phase" = table ]; then
+  noise=${NOISE:-0}
+  for task in ${TASKS:-pusher door picker}; do
+    python3 bench/seeds.py --task "$task" --seeds "${SEEDS:-0-4}" --parallel 5 --threads 1 --noise "$noise" \
+      --max-minutes "$minutes" --set device="$device" replay_pipeline=device num_envs=4 \
+      --out "$runs/table-noise$noise" --csv "$runs/table-$task-noise$noise.csv" > "$logs/table-$task-noise$noise.txt" 2>&1 &
+  done
+  wait  # (one CSV per task, as the harnesses write theirs at once; then one file of them all)
+  awk 'FNR > 1 || NR == 1' "$runs"/table-*-noise"$noise".csv > "$OUT/seeds.csv"
+  tar czf "$OUT/table.tar.gz" --exclude=data "$runs/table-noise$noise" "$logs"/table-*.txt
+  cat "$logs"/table-*.txt | tee "$OUT/table.txt"
   exit 0
 fi
 
