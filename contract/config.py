@@ -165,8 +165,9 @@ class ClassifierConfig:
     reward_centering: bool = False
     """r = f_psi(s') less f_psi's mean on 256 replay observations, taken after each epoch: the level that moves with
     log pi in the AIRL form (f_psi ~ log pi + log-odds) stays out of the Q targets."""
-    no_answer_share: float = 0.0
-    """VICE-RAQ: share of classifier negatives drawn from "no" answers; 0: the paper's (replay only)."""
+    no_answer_share: float = 0.25
+    """VICE-RAQ: share of classifier negatives drawn from "no" answers (once there are any); 0: the paper's (replay
+    only)."""
     naive_classifier_steps: int = 10_000
     """naive_classifier: gradient steps of its one-off training after the first epoch."""
     raq_initial_negatives: int = 2000
@@ -369,11 +370,11 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
 
     @classmethod
     def paper(cls, **overrides: Any) -> "TrainConfig":
-        """The paper's code as released: its conv net, separate per network, no augmentation, fp32, and its
-        classifier schedule (10 steps per epoch at lr 1e-4)."""
+        """The paper's code as released: its conv net, separate per network, no augmentation, fp32, its classifier
+        schedule (10 steps per epoch at lr 1e-4), and replay alone as f_psi's negatives."""
         faithful = cls(
             encoder="paper", shared_encoder=False, augmentation="none", precision="fp32", classifier_steps=10,
-            classifier_lr=1e-4,
+            classifier_lr=1e-4, no_answer_share=0.0,
         )  # fmt: skip
         return replace(faithful, **overrides)
 

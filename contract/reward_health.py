@@ -69,8 +69,8 @@ def reward_verdict(
             "stuck",
             f"f_psi rated the last {len(recent)} asked states as successes and all were answered no: the policy is "
             "exploiting the classifier.",
-            "Use the no answers as negatives (no_answer_share 0.25), ask more often (a lower query_every), and add "
-            "goal photos that show the finished task from the camera's view.",
+            "Ask more often (a lower query_every) and weigh the no answers more among f_psi's negatives (a higher "
+            "no_answer_share than its 0.25), and add goal photos that show the finished task from the camera's view.",
         )
     if len(agreement) and len(answered) >= 2 * MIN_QUERIES and agreement[-1][1] < LOW_AGREEMENT:
         return Verdict(

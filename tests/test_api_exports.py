@@ -126,7 +126,8 @@ def test_envs_list_the_settings_each_simulated_task_learns_with(client: TestClie
     envs = client.get("/api/envs").json()
     assert set(envs["task_settings"]) == set(envs["simulated"])
     door = envs["task_settings"]["VisualDoor-v0"]
-    assert door["fields"]["classifier_steps"] == 10 and door["results_page"] == "docs/results.md#door"
+    assert door["fields"] == {"query_every": 1000, "query_budget": 50}
+    assert door["results_page"] == "docs/results.md#door"
     for env_id, task in envs["task_settings"].items():  # each is a config a run can be created with
         body = {"env_id": env_id, "goal_set_id": goal_set_with_photo["id"], "config": task["fields"]}
         created = client.post("/api/runs", json=body)

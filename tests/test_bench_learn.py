@@ -37,7 +37,7 @@ def test_a_run_with_task_settings_writes_its_curve_and_summary(tmp_path: Path) -
         capture_output=True, text=True, check=True,
     )  # fmt: skip
     config = json.loads(stored.stdout)
-    assert config["query_budget"] == 300 and config["classifier_steps"] == 10 and config["no_answer_share"] == 0.25
+    assert config["query_every"] == 50 and config["query_budget"] == 50  # --set wins; the budget is the door's
 
     # --report writes them again from the run's database alone (a run whose script was killed before them)
     (out / "summary.json").unlink()

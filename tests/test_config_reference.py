@@ -8,6 +8,7 @@ from dataclasses import fields
 from conftest import ROOT
 from fastapi.testclient import TestClient
 
+import sim
 from contract.config import CONFIG_PARTS, REAL_ROBOT_GOAL_IMAGES, TrainConfig, config_part, field_docs
 
 
@@ -42,3 +43,21 @@ def test_the_real_robot_preset_is_the_papers_robot_settings() -> None:
     robot = TrainConfig.real_robot(seed=4)
     assert (robot.image_size, robot.conv_filters, robot.query_every, robot.eval_episodes) == (84, 32, 250, 0)
     assert robot.seed == 4 and robot.algorithm == "vice_raq" and REAL_ROBOT_GOAL_IMAGES == 80
+
+
+def test_a_task_preset_sets_only_what_the_paper_set_per_task() -> None:
+    """The queries' interval and budget and the episode length; every other field is one default for all tasks."""
+    assert set(sim.PRESETS) == set(sim.TASKS.values())
+    for env_id, preset in sim.PRESETS.items():
+        assert set(preset) <= set(sim.PRESET_FIELDS), env_id
+        TrainConfig(env_id=env_id, **preset)  # a valid run config
+
+
+def test_the_paper_preset_is_the_published_algorithm_whatever_the_defaults() -> None:
+    paper = TrainConfig.paper()
+    assert (paper.classifier_steps, paper.classifier_lr, paper.no_answer_share) == (10, 1e-4, 0.0)
+    assert (paper.encoder, paper.shared_encoder, paper.augmentation) == ("paper", False, "none")
+    assert (paper.n_step, paper.updates_per_step, paper.critic_layer_norm) == (1, 1, False)
+    assert not paper.reward_centering
+    assert paper.classifier_label_smoothing == paper.classifier_gradient_penalty == 0.0
+    assert TrainConfig().no_answer_share == 0.25
