@@ -116,8 +116,8 @@ class SACConfig:
     """Target policy entropy; None means -dim(A)."""
     initial_random_steps: int = 1000
     """Uniform random actions before the policy acts (and before updates start)."""
-    updates_per_step: int = 1
-    """Gradient steps per environment step (with a real-time actor: at most this many; fewer when slower)."""
+    updates_per_step: int = 2
+    """Gradient steps per environment step (with a real-time actor: at most this many; fewer when slower); 1: SAC's."""
     n_step: int = 1
     """Steps of the return in the critic's target (DrQ-v2: 3), on the host pipeline; 1: SAC's one-step target."""
     replay_capacity: int = 200_000
@@ -138,8 +138,8 @@ class NetworkConfig:
     """One conv encoder for actor and critics, trained by the critic (DrQ / SAC-AE); False: one each."""
     feature_dim: int = 50
     """Shared encoder only: Linear + LayerNorm + tanh of the conv features to this size (SAC-AE, DrQ); 0: none."""
-    critic_layer_norm: bool = False
-    """LayerNorm (no affine) after each hidden layer of the Q MLPs, before the ReLU (RLPD's critics)."""
+    critic_layer_norm: bool = True
+    """LayerNorm (no affine) after each hidden layer of the Q MLPs, before the ReLU (RLPD's critics); False: SAC's."""
     augmentation: Literal["none", "random_shift"] = "random_shift"
     """Image augmentation for SAC updates: DrQ's random shift by up to 4 pixels (scaled to image size)."""
 
@@ -370,11 +370,12 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
 
     @classmethod
     def paper(cls, **overrides: Any) -> "TrainConfig":
-        """The paper's code as released: its conv net, separate per network, no augmentation, fp32, its classifier
-        schedule (10 steps per epoch at lr 1e-4), and replay alone as f_psi's negatives."""
+        """The paper's code as released: its conv net, separate per network, no augmentation, fp32, SAC's critics
+        and one update per env step, its classifier schedule (10 steps per epoch at lr 1e-4), and replay alone as
+        f_psi's negatives."""
         faithful = cls(
-            encoder="paper", shared_encoder=False, augmentation="none", precision="fp32", classifier_steps=10,
-            classifier_lr=1e-4, no_answer_share=0.0,
+            encoder="paper", shared_encoder=False, augmentation="none", precision="fp32", critic_layer_norm=False,
+            updates_per_step=1, classifier_steps=10, classifier_lr=1e-4, no_answer_share=0.0,
         )  # fmt: skip
         return replace(faithful, **overrides)
 

@@ -160,10 +160,12 @@ def test_failed_run_reports_the_reason(setup: tuple[Settings, Store, int]) -> No
     assert run.status == RunStatus.FAILED and "needs a goal set" in run.status_reason
 
 
-@pytest.mark.parametrize("algorithm", ["raq", "vice_raq"])
-def test_answers_reach_the_example_sets(setup: tuple[Settings, Store, int], algorithm: str) -> None:
+@pytest.mark.parametrize(("algorithm", "no_answer_share"), [("raq", 0.0), ("vice_raq", 0.25), ("vice_raq", 0.0)])
+def test_answers_reach_the_example_sets(
+    setup: tuple[Settings, Store, int], algorithm: str, no_answer_share: float
+) -> None:
     settings, store, goal_set_id = setup
-    config = tiny_config(algorithm=algorithm)
+    config = tiny_config(algorithm=algorithm, no_answer_share=no_answer_share)
     run_id = create_run(store, goal_set_id, config)
     trainer = Trainer(
         config, store=store, run_id=run_id, worker="w", goal_set_id=goal_set_id,
@@ -181,9 +183,9 @@ def test_answers_reach_the_example_sets(setup: tuple[Settings, Store, int], algo
     assert trainer.queries is not None
     trainer.queries.read_answers()
     assert len(model.positives) == 5 and np.array_equal(model.positives[-1], yes_image)
-    if algorithm == "raq":  # RAQ: a no is a negative
+    if algorithm == "raq" or no_answer_share > 0:  # RAQ: a no is a negative; VICE-RAQ: kept for its share
         assert len(model.negatives) == negatives_before + 1 and np.array_equal(model.negatives[-1], no_image)
-    else:  # VICE-RAQ: no's are already among the replay negatives
+    else:  # the paper's VICE-RAQ: no's are already among the replay negatives
         assert len(model.negatives) == negatives_before
     trainer.queries.read_answers()  # the cursor: nothing is taken twice
     assert len(model.positives) == 5
@@ -240,7 +242,7 @@ def test_sigkilled_learner_is_resumed_from_its_checkpoint(setup: tuple[Settings,
     final = load_checkpoint(path)
     assert final is not None and final["step"] == config.total_steps
     assert len(final["reward_model"]["answered_positives"]) == yes
-    assert len(final["reward_model"]["answered_negatives"]) == 0  # vice_raq: a no is not an extra negative
+    assert len(final["reward_model"]["answered_negatives"]) == len(pending) - yes  # each no once, for its share
     seen: set[tuple[str, int]] = set()
     for metric in store.metrics(run_id=run_id):
         assert (metric.name, metric.step) not in seen, f"{metric.name} recorded twice at step {metric.step}"
@@ -531,9 +533,11 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
     assert trainer.counters.step == 200 and trainer.replay.added == 200
     assert sum(steps) == 200 and min(steps) >= 60, steps
     assert steps[0] == 68  # the checkpoint at step 100 ended a batch after the first env; the next began with it
-    # a batch's envs all step (physics and render) before its steps' updates run, one update per env step
+    # a batch's envs all step (physics and render) before its steps' updates run, updates_per_step per env step
     runs = re.findall(r"S+|U+", "".join(events))[2:]  # (after the warm-up's steps and the first updates)
-    assert runs.count("SSS") > 30 and all(len(s) == len(u) for s, u in zip(runs[::2], runs[1::2], strict=True)), runs
+    per_step = config.updates_per_step
+    assert runs.count("SSS") > 30, runs
+    assert all(len(s) * per_step == len(u) for s, u in zip(runs[::2], runs[1::2], strict=True)), runs
     # one forward pass per 3 env steps after the warm-up (the evaluations act on their 2 episodes in one batch)
     assert batches.count(3) >= (200 - config.initial_random_steps) // 3 - 2 and batches.count(2) > 0
     state = load_checkpoint(checkpoint_path(settings.checkpoint_dir, run_id))
@@ -637,7 +641,7 @@ def test_the_updates_run_on_the_update_thread_while_the_loop_acts_steps_and_scor
     assert "".join(order).count("ASSQ") == 50  # per batch after the warm-up: act, step both envs, score
     assert len(same_as_live) == 50 and all(same_as_live) and acting_copy.actor is not trainer.agent.actor
     assert len(scored) >= 10  # batches of 8 candidates scored while their batch's updates waited
-    assert trainer.counters.total_updates == 150 - config.initial_random_steps + 1
+    assert trainer.counters.total_updates == (150 - config.initial_random_steps + 1) * config.updates_per_step
     assert {m.name for m in store.metrics(run_id=run_id)} >= {"critic/loss", "eval/success_rate"}
 
 
