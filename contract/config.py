@@ -35,6 +35,9 @@ FLOAT_MAXIMA: dict[str, float] = {
 }  # fmt: skip
 RETIRED_FIELDS = frozenset({"classifier_beside_updates"})
 """Fields that runs stored by earlier versions may hold and that no longer change anything: dropped when read."""
+FIELDS_BEFORE_THEY_EXISTED: dict[str, Any] = {"critic_layer_norm": False}
+"""Fields whose default now differs from what runs stored before the field existed did: a stored config without
+one reads as it ran."""
 DEVICE_PATTERN = re.compile(r"cpu|cuda(:(1[0-5]|[0-9]))?")
 ENV_ID_PATTERN = re.compile(r"[A-Za-z0-9_.\-/]+(:[A-Za-z0-9_.\-/]+)?")
 # Memory a run may take on this host: its estimate (TrainConfig.memory_estimate) must stay under this share of RAM.
@@ -363,6 +366,7 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
         """Build from stored JSON (the fields of RETIRED_FIELDS dropped); unknown keys are an error that names them."""
         known = {field.name for field in fields(cls)}
         values = {name: value for name, value in values.items() if name not in RETIRED_FIELDS}
+        values = {**FIELDS_BEFORE_THEY_EXISTED, **values}
         unknown = sorted(set(values) - known)
         if unknown:
             raise ValueError(f"{unknown[0]}: unknown config field")

@@ -61,3 +61,12 @@ def test_the_paper_preset_is_the_published_algorithm_whatever_the_defaults() -> 
     assert not paper.reward_centering
     assert paper.classifier_label_smoothing == paper.classifier_gradient_penalty == 0.0
     assert TrainConfig().no_answer_share == 0.25
+
+
+def test_a_run_stored_before_layernorm_critics_resumes_as_it_ran() -> None:
+    """A stored config without critic_layer_norm (runs from before the field) keeps SAC's critics; new runs get
+    the LayerNorm ones."""
+    stored = {name: value for name, value in TrainConfig().to_dict().items() if name != "critic_layer_norm"}
+    assert TrainConfig.from_dict(stored).critic_layer_norm is False
+    assert TrainConfig().critic_layer_norm is True
+    assert TrainConfig.from_dict(TrainConfig().to_dict()).critic_layer_norm is True

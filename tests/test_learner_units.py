@@ -255,7 +255,7 @@ def test_a_checkpoint_from_before_the_twin_q_ensemble_loads_with_the_same_q_valu
     """Runs checkpointed when q1 and q2 were two nn.Sequential MLPs resume: both Q's, the target Q's and every
     Adam state entry, with the shared encoder (default) and with the critic's own two encoders (paper)."""
     torch.manual_seed(0)
-    config = tiny(shared_encoder=shared, precision="fp32")
+    config = tiny(shared_encoder=shared, precision="fp32", critic_layer_norm=False)  # (no LayerNorm back then)
     agent = SACAgent(config, action_dim=2)
     old = torch.nn.Module()  # the critic as it was: [encoders,] q1, q2
     if not shared:
