@@ -178,7 +178,8 @@ def report_only(out: Path, name: str, *, threads: int | None) -> int:
     wall_minutes = (last - run.started_at).total_seconds() / 60 if run.started_at and last else None
     summary = write_report(store, run.id, out, name, stop_reason="report", threads=threads, wall_minutes=wall_minutes)
     store.dispose()
-    return 0 if summary["status"] == "finished" else 1
+    interrupted = stop_reason is not None and stop_reason.startswith("interrupted")
+    return 1 if summary["status"] == "failed" or interrupted else 0  # (stopped at a --stop-at-* condition: 0)
 
 
 def main() -> int:
@@ -302,7 +303,8 @@ def main() -> int:
         wall_minutes=earlier_minutes + wall_seconds / 60,
     )  # fmt: skip
     store.dispose()
-    return 0 if summary["status"] == "finished" else 1
+    interrupted = stop_reason is not None and stop_reason.startswith("interrupted")
+    return 1 if summary["status"] == "failed" or interrupted else 0  # (stopped at a --stop-at-* condition: 0)
 
 
 if __name__ == "__main__":
