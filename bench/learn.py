@@ -178,8 +178,7 @@ def report_only(out: Path, name: str, *, threads: int | None) -> int:
     wall_minutes = (last - run.started_at).total_seconds() / 60 if run.started_at and last else None
     summary = write_report(store, run.id, out, name, stop_reason="report", threads=threads, wall_minutes=wall_minutes)
     store.dispose()
-    interrupted = stop_reason is not None and stop_reason.startswith("interrupted")
-    return 1 if summary["status"] == "failed" or interrupted else 0  # (stopped at a --stop-at-* condition: 0)
+    return 1 if summary["status"] == "failed" else 0
 
 
 def main() -> int:

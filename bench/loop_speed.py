@@ -10,8 +10,8 @@ and the update itself), so both figures share the machine's state:
 
     E = env steps per second of the loop from the warm-up's end to the last step, everything included (the run's
         final checkpoint is not the loop's);
-    U = updates per second of the SAC updates alone (the bound: one update per env step);
-    R = E / U, the share of the update bound the loop reaches.
+    U = updates per second of the SAC updates alone (the bound: updates_per_step updates per env step);
+    R = E x updates_per_step / U, the share of the update bound the loop reaches.
 
 On the CPU the updates run on the update thread while the loop's thread acts, steps the envs and scores query
 candidates (TrainConfig.update_thread), and f_psi's epoch runs there while the evaluation runs.
@@ -207,7 +207,8 @@ def main() -> int:
     if not args.device.startswith("cuda"):  # (on a GPU the time spent in the updates is not their cost)
         training = update_seconds + timer.inner_seconds["classifier steps"]
         print(f"gradient steps (SAC and f_psi) per second of the loop's time: {training / elapsed:.2f}")
-    print(f"loop: {e:.1f} env steps/s end to end, {u:.1f} updates/s update-bound, ratio {e / u:.2f}")
+    ratio = e * config.updates_per_step / u
+    print(f"loop: {e:.1f} env steps/s end to end, {u:.1f} updates/s update-bound, ratio {ratio:.2f}")
     return 0
 
 
