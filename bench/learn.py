@@ -268,6 +268,7 @@ def main() -> int:
     processes = [serve]
     started = time.monotonic()
     stop_reason: str | None = None
+    interrupted = False
     try:
         wait_for_health(url)
         oracle_args = [
@@ -287,7 +288,7 @@ def main() -> int:
         try:
             stop_reason = watch(store, run.id, learner, args, started, resumed_at)
         except KeyboardInterrupt as interrupt:  # SIGTERM or Ctrl-C: stop the run, then write its curve and summary
-            stop_reason = f"interrupted ({interrupt})"
+            interrupted, stop_reason = True, f"interrupted ({interrupt})"
             print(f"{stop_reason}: stopping the run", flush=True)
             store.request_stop(run_id=run.id)
             learner.wait(timeout=300)
@@ -302,7 +303,6 @@ def main() -> int:
         wall_minutes=earlier_minutes + wall_seconds / 60,
     )  # fmt: skip
     store.dispose()
-    interrupted = stop_reason is not None and stop_reason.startswith("interrupted")
     return 1 if summary["status"] == "failed" or interrupted else 0  # (stopped at a --stop-at-* condition: 0)
 
 

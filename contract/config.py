@@ -363,7 +363,8 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "TrainConfig":
-        """Build from stored JSON (the fields of RETIRED_FIELDS dropped); unknown keys are an error that names them."""
+        """Build from stored JSON (the fields of RETIRED_FIELDS dropped, those of FIELDS_BEFORE_THEY_EXISTED filled in
+        where absent); unknown keys are an error that names them."""
         known = {field.name for field in fields(cls)}
         values = {name: value for name, value in values.items() if name not in RETIRED_FIELDS}
         values = {**FIELDS_BEFORE_THEY_EXISTED, **values}
