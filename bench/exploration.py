@@ -2,8 +2,10 @@
 
     MUJOCO_GL=egl python bench/exploration.py [--episodes 400] [--tasks door picker pusher]
 
-For each task, 100-step episodes from reset under two random policies: i.i.d. uniform actions, and uniform actions
-each held for 10 steps (a crude model of temporally correlated exploration). Each row prints the share of episodes
+For each task, 100-step episodes from reset under four random policies: i.i.d. uniform actions; uniform actions
+each held for 10 steps (a crude model of temporally correlated exploration); and uniform actions made of pink and
+red noise (power spectrum 1/f and 1/f^2 along the episode, learner/exploration.py), what the warm-up acts with
+under `exploration_noise_beta` 1 and 2. Each row prints the share of episodes
 in which a task-specific milestone was reached at some step, the share that end in success (what evaluation
 counts), and the scripted controller's success rate as a yardstick. Milestones:
 
@@ -27,8 +29,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import gymnasium
 import numpy as np
+import torch
 
 import sim
+from learner.exploration import colored_noise, uniform_of
 from sim.scripted import success_rate
 
 HOLD_STEPS = 10
@@ -69,19 +73,26 @@ MILESTONES: dict[str, dict[str, Callable[[Infos], bool]]] = {
 }
 
 
-def random_episodes(task: str, episodes: int, hold: int, seed: int = 0) -> dict[str, float]:
-    """Share of `episodes` random episodes (each action held `hold` steps) reaching each milestone of `task`."""
+def uniform_actions(env: gymnasium.Env, hold: int, beta: float, generator: torch.Generator) -> np.ndarray:
+    """One episode's actions in [-1, 1]: i.i.d. uniform, each held `hold` steps (beta 0), or coloured noise's."""
+    steps, dims = sim.MAX_EPISODE_STEPS, int(env.action_space.shape[0])
+    if beta > 0:
+        return uniform_of(colored_noise(beta, steps, dims, generator)).numpy()
+    return np.repeat([env.action_space.sample() for _ in range(0, steps, hold)], hold, axis=0)[:steps]
+
+
+def random_episodes(task: str, episodes: int, hold: int = 1, beta: float = 0.0, seed: int = 0) -> dict[str, float]:
+    """Share of `episodes` random episodes (each action held `hold` steps, or coloured noise of exponent `beta`)
+    reaching each milestone of `task`."""
     env = gymnasium.make(sim.TASKS[task])
     env.action_space.seed(seed)
+    generator = torch.Generator().manual_seed(seed)
     reached = dict.fromkeys([*MILESTONES[task], "success at some step", "success at the end"], 0)
     try:
         for episode in range(episodes):
             _, info = env.reset(seed=seed + episode)
             infos = [info]
-            action = env.action_space.sample()
-            for step in range(sim.MAX_EPISODE_STEPS):
-                if step % hold == 0:
-                    action = env.action_space.sample()
+            for action in uniform_actions(env, hold, beta, generator):
                 infos.append(env.step(action)[4])
             for name, milestone in MILESTONES[task].items():
                 reached[name] += milestone(infos)
@@ -100,11 +111,15 @@ def main() -> None:
     args = parser.parse_args()
     for task in args.tasks:
         print(f"{task}: scripted controller {success_rate(task, 'scripted', args.scripted_episodes):.0%} success")
-        iid = random_episodes(task, args.episodes, hold=1)
-        held = random_episodes(task, args.episodes, hold=HOLD_STEPS)
-        print(f"  {'milestone':24s} {'i.i.d.':>8s} {f'held {HOLD_STEPS}':>8s}   ({args.episodes} episodes each)")
-        for name in iid:
-            print(f"  {name:24s} {iid[name]:8.1%} {held[name]:8.1%}")
+        policies = {
+            "i.i.d.": random_episodes(task, args.episodes),
+            f"held {HOLD_STEPS}": random_episodes(task, args.episodes, hold=HOLD_STEPS),
+            "pink": random_episodes(task, args.episodes, beta=1.0),
+            "red": random_episodes(task, args.episodes, beta=2.0),
+        }
+        print(f"  {'milestone':24s} " + " ".join(f"{name:>8s}" for name in policies) + f"   ({args.episodes} each)")
+        for milestone in policies["i.i.d."]:
+            print(f"  {milestone:24s} " + " ".join(f"{shares[milestone]:8.1%}" for shares in policies.values()))
 
 
 if __name__ == "__main__":

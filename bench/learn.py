@@ -187,7 +187,10 @@ def main() -> int:
     parser.add_argument("--task", choices=sorted(TASKS), default="pusher")
     parser.add_argument("--algorithm", default="vice_raq")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--total-steps", type=int, default=100_000)
+    parser.add_argument(
+        "--total-steps", type=int, default=None,
+        help="env steps of the run (default 100,000); with --resume, a larger total trains a stopped run further",
+    )  # fmt: skip
     parser.add_argument(
         "--task-settings", action="store_true",
         help="start from the task preset (sim.PRESETS, the New "
@@ -210,7 +213,8 @@ def main() -> int:
     )  # fmt: skip
     parser.add_argument(
         "--resume", action="store_true",
-        help="continue the stopped run in --out from its checkpoint (wall time adds to the earlier summary's)",
+        help="continue the stopped run in --out from its checkpoint, to a larger --total-steps if given (wall time "
+        "adds to the earlier summary's)",
     )  # fmt: skip
     parser.add_argument("--until-step", type=int, default=None, help="stop the run once it reaches this env step")
     parser.add_argument(
@@ -232,8 +236,9 @@ def main() -> int:
     fields = dict(SIM_TASK_SETTINGS[TASKS[args.task]].fields) if args.task_settings else {}
     given = {"query_every": args.query_every, "query_budget": args.query_budget}
     fields |= {name: value for name, value in given.items() if value is not None} | parse_overrides(args.set)
+    total_steps = args.total_steps or 100_000
     config = TrainConfig(
-        env_id=TASKS[args.task], algorithm=args.algorithm, seed=args.seed, total_steps=args.total_steps, **fields
+        env_id=TASKS[args.task], algorithm=args.algorithm, seed=args.seed, total_steps=total_steps, **fields
     )
     port = free_port()
     url = f"http://127.0.0.1:{port}"
@@ -248,7 +253,9 @@ def main() -> int:
     earlier_minutes = 0.0
     if args.resume:  # the one run of this --out, as it was stopped (or re-queued by an interrupt: claimed as it is)
         run = store.list_runs()[0]
-        if run.status != "queued":
+        if args.total_steps and args.total_steps > max(run.total_steps, run.step or 0):  # trained further
+            run = store.continue_run(run_id=run.id, total_steps=args.total_steps)
+        elif run.status != "queued":
             run = store.resume_run(run_id=run.id)
         earlier = out / "summary.json"  # (absent when the earlier run was killed before writing it)
         earlier_minutes = float(json.loads(earlier.read_text())["wall_minutes"]) if earlier.exists() else 0.0

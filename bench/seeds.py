@@ -94,7 +94,7 @@ def finished(folder: Path, *, target: float, budget: int) -> bool:
     if not summary_path.exists():
         return False
     summary = json.loads(summary_path.read_text())
-    if summary["status"] in ("finished", "failed") or summary["env_steps"] >= budget:
+    if summary["status"] == "failed" or summary["env_steps"] >= budget:  # (a finished run within budget goes on)
         return True
     return any(row.get("eval/success_rate", -1.0) >= target for row in read_curve(folder))
 

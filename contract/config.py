@@ -31,7 +31,7 @@ FLOAT_MAXIMA: dict[str, float] = {
     "actor_lr": 1.0, "critic_lr": 1.0, "alpha_lr": 1.0, "classifier_lr": 1.0, "initial_alpha": 1e6,
     "mixup_alpha": 100.0, "classifier_label_smoothing": 1.0, "classifier_gradient_penalty": 1e6,
     "heartbeat_seconds": 3600.0, "no_answer_share": 1.0, "control_hz": 1000.0,
-    "policy_sync_seconds": 3600.0, "watchdog_seconds": 60.0,
+    "policy_sync_seconds": 3600.0, "watchdog_seconds": 60.0, "exploration_noise_beta": 2.0,
 }  # fmt: skip
 RETIRED_FIELDS = frozenset({"classifier_beside_updates"})
 """Fields that runs stored by earlier versions may hold and that no longer change anything: dropped when read."""
@@ -119,6 +119,9 @@ class SACConfig:
     """Target policy entropy; None means -dim(A)."""
     initial_random_steps: int = 1000
     """Uniform random actions before the policy acts (and before updates start)."""
+    exploration_noise_beta: float = 0.0
+    """Colour of the acting policy's noise over an episode, power spectrum ~ 1/f^beta (Eberhard et al. 2023; the
+    warm-up's actions too): 0 white, SAC's i.i.d. draws; 1 pink; 2 red."""
     updates_per_step: int = 2
     """Gradient steps per environment step (with a real-time actor: at most this many; fewer when slower); 1: SAC's."""
     n_step: int = 1
@@ -315,7 +318,10 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
             errors.append(("discount", "must be in (0, 1]"))
         if not 0 < self.tau <= 1:
             errors.append(("tau", "must be in (0, 1]"))
-        for name in ("mixup_alpha", "no_answer_share", "classifier_label_smoothing", "classifier_gradient_penalty"):
+        for name in (
+            "mixup_alpha", "no_answer_share", "classifier_label_smoothing", "classifier_gradient_penalty",
+            "exploration_noise_beta",
+        ):  # fmt: skip
             if getattr(self, name) < 0:
                 errors.append((name, "must not be negative"))
         if self.algorithm not in ALGORITHMS:

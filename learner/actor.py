@@ -35,6 +35,7 @@ import torch
 from contract.config import TrainConfig
 from contract.envs import display_image, encode_png, make_env, model_image, scale_action
 from contract.store import Store
+from learner.exploration import EpisodeNoise, uniform_of
 from learner.sac import SACAgent
 
 CONTROL_POLL_SECONDS = 0.05
@@ -118,6 +119,11 @@ class _Actor:
         self.action_space = self.env.action_space
         self.agent = SACAgent(cfg, int(self.action_space.shape[0]))
         self.generator = torch.Generator().manual_seed(cfg.seed)
+        self.noise = (  # coloured exploration noise per episode, from the generator; None: i.i.d. (SAC's)
+            EpisodeNoise(cfg.exploration_noise_beta, cfg.episode_steps, int(self.action_space.shape[0]), self.generator)
+            if cfg.exploration_noise_beta > 0
+            else None
+        )
         self.rng = np.random.default_rng([cfg.seed, 1])
         self.store = Store(settings.database_url)
         self.period = 1.0 / settings.control_hz
@@ -261,9 +267,12 @@ class _Actor:
         first weights, then the policy's sample."""
         if self.controls.evaluation_round is not None:
             return self.agent.act_batch(obs[None], deterministic=True)[0]
+        noise = None if self.noise is None else self.noise.next()[None]
         if self.step < self.config.initial_random_steps or not self.has_policy:
-            return self.rng.uniform(-1.0, 1.0, self.action_space.shape).astype(np.float32)
-        return self.agent.act_batch(obs[None], deterministic=False, generator=self.generator)[0]
+            if noise is None:
+                return self.rng.uniform(-1.0, 1.0, self.action_space.shape).astype(np.float32)
+            return uniform_of(noise[0]).numpy()
+        return self.agent.act_batch(obs[None], deterministic=False, generator=self.generator, noise=noise)[0]
 
     def _set_state(self, state: str) -> None:
         if state != self.state:
@@ -335,6 +344,8 @@ class _Actor:
                 self._refresh_frame()
                 self.wake.wait(self.period)
         raw, info = self.env.reset()
+        if self.noise is not None:
+            self.noise.restart()
         self.controls.evaluation_round = None
         if self.controls.evaluation_pending > 0:  # (the store unreachable: a training episode, the arm held)
             with contextlib.suppress(Exception):

@@ -270,10 +270,11 @@ class RewardClassifier(nn.Module):
 
 
 def squashed_gaussian_sample(
-    mean: torch.Tensor, log_std: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """a = tanh(u), u ~ N(mean, std) (reparameterised; the noise from `generator`, default torch's); returns
-    (a, log pi(a|s)) with the tanh correction.
+    mean: torch.Tensor, log_std: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None,
+    noise: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    """a = tanh(u), u = mean + std * eps, eps ~ N(0, 1) (reparameterised; eps from `generator`, default torch's, or
+    the given `noise`, e.g. coloured); returns (a, log pi(a|s)) with the tanh correction.
 
     log pi(a|s) = log N(u; mean, std) - sum log(1 - tanh(u)^2), and log(1 - tanh(u)^2) is computed as
     2 (log 2 - u - softplus(-2u)) for numerical stability (SAC paper, appendix C).
@@ -282,7 +283,9 @@ def squashed_gaussian_sample(
         u = mean
         noise = torch.zeros_like(mean)
     else:
-        noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
+        if noise is None:
+            noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
+        noise = noise.to(mean.dtype)
         u = mean + log_std.exp() * noise
     gaussian = (-0.5 * noise.pow(2) - log_std - _HALF_LOG_2PI).sum(-1)
     correction = (2.0 * (_LOG_2 - u - F.softplus(-2.0 * u))).sum(-1)

@@ -38,12 +38,14 @@ FP32_ACTING_MAX = 16
 def sample_policy(
     actor: torch.nn.Module, encoder: torch.nn.Module | None, images: torch.Tensor,
     context: AbstractContextManager[Any], deterministic: bool = False, generator: torch.Generator | None = None,
+    noise: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
     """(a, log pi(a|s)) of `actor` on float images (through the shared `encoder` when there is one), the networks
-    run without gradients inside `context` (autocast, or inference mode), the action drawn from `generator`."""
+    run without gradients inside `context` (autocast, or inference mode), the action drawn from `generator` (or
+    with the given N(0, 1) `noise`, one row per image)."""
     with torch.no_grad(), context:
         mean, log_std = actor(encoder(images) if encoder is not None else images)
-    return squashed_gaussian_sample(mean, log_std, deterministic, generator)
+    return squashed_gaussian_sample(mean, log_std, deterministic, generator, noise)
 
 
 class SACAgent:
@@ -121,15 +123,16 @@ class SACAgent:
         return self.act_batch(observation[None], deterministic)[0]
 
     def act_batch(
-        self, observations: np.ndarray, deterministic: bool = False, generator: torch.Generator | None = None
-    ) -> np.ndarray:
+        self, observations: np.ndarray, deterministic: bool = False, generator: torch.Generator | None = None,
+        noise: torch.Tensor | None = None,
+    ) -> np.ndarray:  # fmt: skip
         """uint8 NHWC observations -> one action each, from one forward pass, the noise drawn from `generator`
-        (default torch's)."""
-        return self.act_with(self.actor, self.encoder, observations, deterministic, generator)
+        (default torch's) or given (`noise`: N(0, 1), one row per observation)."""
+        return self.act_with(self.actor, self.encoder, observations, deterministic, generator, noise)
 
     def act_with(
         self, actor: torch.nn.Module, encoder: torch.nn.Module | None, observations: np.ndarray,
-        deterministic: bool, generator: torch.Generator | None,
+        deterministic: bool, generator: torch.Generator | None, noise: torch.Tensor | None = None,
     ) -> np.ndarray:  # fmt: skip
         """`act_batch` with these networks (the agent's or a PolicyCopy's). On a CPU a batch of at most
         FP32_ACTING_MAX images runs in fp32 whatever the precision: bf16 autocast casts every weight per call,
@@ -139,7 +142,7 @@ class SACAgent:
             context: AbstractContextManager[Any] = torch.inference_mode()
         else:
             images, context = self.images(observations), self.autocast()
-        action, _ = sample_policy(actor, encoder, images, context, deterministic, generator)
+        action, _ = sample_policy(actor, encoder, images, context, deterministic, generator, noise)
         return action.float().cpu().numpy()
 
     # ------------------------------------------------------------------ updates
@@ -275,9 +278,11 @@ class PolicyCopy:
         """(a, log pi(a|s)) for float images, as SACAgent.policy (a `learner.reward.Policy`)."""
         return sample_policy(self.actor, self.encoder, images, self.agent.autocast(), generator=self.generator)
 
-    def act_batch(self, observations: np.ndarray, deterministic: bool = False) -> np.ndarray:
+    def act_batch(
+        self, observations: np.ndarray, deterministic: bool = False, noise: torch.Tensor | None = None
+    ) -> np.ndarray:
         """SACAgent.act_batch of the copy."""
-        return self.agent.act_with(self.actor, self.encoder, observations, deterministic, self.generator)
+        return self.agent.act_with(self.actor, self.encoder, observations, deterministic, self.generator, noise)
 
 
 def _ensemble_optimizer_state(optimizer: dict[str, Any], critic: dict[str, torch.Tensor]) -> dict[str, Any]:

@@ -63,6 +63,7 @@ from learner.checkpoint import checkpoint_url as checkpoint_location
 from learner.checkpoint import load_checkpoint, load_json, save_checkpoint, save_json
 from learner.env_workers import ProcessEnv, process_envs
 from learner.evaluation import Evaluator, eval_env_count
+from learner.exploration import EpisodeNoise, uniform_of
 from learner.networks import resolve_precision
 from learner.query_channel import QueryChannel
 from learner.replay import ReplayBuffer
@@ -184,6 +185,11 @@ class Trainer:
         # acting draws from its own generator; with the update thread it acts on a copy of pi (synced per batch)
         self.acting_generator = torch.Generator(device=self.agent.device).manual_seed(config.seed)
         self.acting_copy = self.agent.policy_copy(self.acting_generator) if self.update_thread is not None else None
+        if config.exploration_noise_beta > 0:  # each env's coloured eps, from the acting generator (else i.i.d.)
+            for episode in self.episodes:
+                episode.noise = EpisodeNoise(
+                    config.exploration_noise_beta, config.episode_steps, self.action_dim, self.acting_generator
+                )
         self.finished_returns: list[float] = []
         self.finished_successes: list[float | None] = []
         self.log_time, self.log_step, self.log_updates = time.monotonic(), 0, 0
@@ -394,19 +400,26 @@ class Trainer:
                 env.close()
 
     def _actions(self, episodes: "list[EnvEpisode]") -> np.ndarray:
-        """One action per env: uniformly random during the warm-up, else the policy's, in one batch."""
+        """One action per env: uniformly random during the warm-up, else the policy's, in one batch. With coloured
+        noise (exploration_noise_beta) both take each env's next eps: the warm-up's as U(-1, 1) through the CDF."""
         cfg, first = self.config, self.counters.step
         actions = np.empty((len(episodes), self.action_dim), dtype=np.float32)
+        sources = [episode.noise for episode in episodes if episode.noise is not None]
+        noise = torch.stack([source.next() for source in sources]) if sources else None
         random = [index for index in range(len(episodes)) if first + index < cfg.initial_random_steps]
         for index in random:
-            actions[index] = self.rng.uniform(-1.0, 1.0, self.action_dim)
+            if noise is None:
+                actions[index] = self.rng.uniform(-1.0, 1.0, self.action_dim)
+            else:
+                actions[index] = uniform_of(noise[index]).cpu().numpy()
         acting = [index for index in range(len(episodes)) if index not in random]
         if acting:
             observations = np.stack([episodes[index].obs for index in acting])
+            eps = None if noise is None else noise[acting]
             if self.acting_copy is not None:  # (beside the updates: the copy of pi)
-                actions[acting] = self.acting_copy.act_batch(observations)
+                actions[acting] = self.acting_copy.act_batch(observations, noise=eps)
             else:
-                actions[acting] = self.agent.act_batch(observations, generator=self.acting_generator)
+                actions[acting] = self.agent.act_batch(observations, generator=self.acting_generator, noise=eps)
         return actions
 
     def _simulate(self, episodes: "list[EnvEpisode]", actions: np.ndarray) -> list[tuple]:
@@ -452,6 +465,8 @@ class Trainer:
         episode.obs = model_image(raw, self.config.image_size, self.config.env_id)
         episode.obs_slot = self.replay.add_frame(episode.obs)
         episode.length, episode.total = 0, 0.0
+        if episode.noise is not None:
+            episode.noise.restart()
         self._observe(episode.env, episode.obs, info, success_of(info))
 
     def _observe(
@@ -796,6 +811,8 @@ class EnvEpisode:
     obs_slot: int = 0
     length: int = 0
     total: float = 0.0
+    noise: EpisodeNoise | None = None
+    """Its coloured exploration noise, drawn anew at each episode's start; None: i.i.d. (SAC's)."""
 
 
 def _cuda_rng_states(device: torch.device) -> list[torch.Tensor] | None:

@@ -285,6 +285,42 @@ def test_visual_pusher_run(setup: tuple[Settings, Store, int]) -> None:
     assert "eval/success_rate" in {metric.name for metric in store.metrics(run_id=run_id)}
 
 
+def _lag_one_correlation(actions: np.ndarray, episode_steps: int) -> float:
+    """Mean product of neighbouring actions within episodes, over their variance."""
+    episodes = actions.reshape(-1, episode_steps, actions.shape[-1])
+    return float((episodes[:, 1:] * episodes[:, :-1]).mean() / actions.var())
+
+
+def test_coloured_exploration_noise_makes_an_episodes_actions_agree_and_the_run_learns_on(
+    setup: tuple[Settings, Store, int],
+) -> None:
+    """exploration_noise_beta=1 (pink): the warm-up's uniform actions and the policy's samples follow each env's
+    sequence, so neighbouring actions of an episode correlate (i.i.d. ones do not), each env has its own, and the
+    run finishes."""
+    settings, store, goal_set_id = setup
+    correlations = {}
+    for beta in (0.0, 1.0):
+        config = tiny_config(
+            total_steps=300, initial_random_steps=200, num_envs=2, exploration_noise_beta=beta, checkpoint_every=1000
+        )
+        run_id = create_run(store, goal_set_id, config)
+        trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
+        try:
+            assert trainer.train() == Outcome.FINISHED
+        finally:
+            trainer.close()
+        actions = trainer.replay.actions[: trainer.replay.added]
+        assert np.abs(actions).max() <= 1.0
+        by_env = [actions[index::2] for index in range(2)]  # (the two envs' steps alternate)
+        warm_up = [env[: config.initial_random_steps // 2] for env in by_env]
+        policy = [env[config.initial_random_steps // 2 :] for env in by_env]
+        correlations[beta] = [_lag_one_correlation(a, config.episode_steps) for a in (*warm_up, *policy)]
+        if beta > 0:
+            assert not np.allclose(by_env[0], by_env[1])
+    assert all(abs(value) < 0.2 for value in correlations[0.0][:2]), correlations
+    assert all(value > 0.3 for value in correlations[1.0]), correlations
+
+
 def _claimed_trainer(store: Store, settings: Settings, run_id: int, config: TrainConfig, goal_set_id: int | None,
                      interrupt: threading.Event | None = None) -> Trainer:  # fmt: skip
     run = store.claim_next_run(worker="w")
@@ -523,8 +559,8 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
     trainer._sac_updates = lambda count: events.append("U" * count) or sac_updates(count)
     batches = []
     act_batch = trainer.agent.act_batch
-    trainer.agent.act_batch = lambda observations, deterministic=False, generator=None: (
-        batches.append(len(observations)) or act_batch(observations, deterministic, generator)
+    trainer.agent.act_batch = lambda observations, deterministic=False, generator=None, noise=None: (
+        batches.append(len(observations)) or act_batch(observations, deterministic, generator, noise)
     )
     try:
         assert trainer.train() == Outcome.FINISHED

@@ -14,6 +14,7 @@ from PIL import Image
 
 from contract.config import TrainConfig
 from contract.envs import encode_gif
+from learner.exploration import EpisodeNoise, colored_noise, uniform_of
 from learner.networks import (
     _matmul_seconds,
     input_dtype,
@@ -178,6 +179,54 @@ def test_squashed_gaussian_log_prob_matches_change_of_variables() -> None:
     expected = density - torch.log(1 - torch.tanh(u) ** 2).sum(-1)
     torch.testing.assert_close(action, torch.tanh(u))
     torch.testing.assert_close(log_pi, expected, atol=1e-4, rtol=1e-4)
+
+
+# ---------------------------------------------------------------------------------------------- exploration
+@pytest.mark.parametrize("steps", [100, 101])
+def test_coloured_noise_keeps_unit_variance_and_its_steps_agree_more_the_redder_it_is(steps: int) -> None:
+    """Each step ~ N(0, 1) whatever beta; the correlation of neighbouring steps: ~0 for white, high for pink,
+    higher for red; the sequences of one generator differ, and the same seed draws the same."""
+    generator = torch.Generator().manual_seed(0)
+    lag_one = {}
+    for beta in (0.0, 1.0, 2.0):
+        noise = torch.stack([colored_noise(beta, steps, 2, generator) for _ in range(1000)])
+        assert noise.shape == (1000, steps, 2)
+        assert abs(noise.var(dim=0).mean().item() - 1.0) < 0.05 and abs(noise.mean().item()) < 0.05
+        lag_one[beta] = (noise[:, 1:] * noise[:, :-1]).mean().item()
+    assert abs(lag_one[0.0]) < 0.03 and 0.5 < lag_one[1.0] < 0.8 and lag_one[2.0] > 0.9, lag_one
+    first, second = (colored_noise(1.0, steps, 2, torch.Generator().manual_seed(3)) for _ in range(2))
+    assert torch.equal(first, second)
+    assert not torch.equal(first, colored_noise(1.0, steps, 2, generator))
+    uniform = uniform_of(torch.stack([colored_noise(1.0, steps, 1, generator) for _ in range(500)]))
+    assert uniform.abs().max() < 1 and abs(uniform.abs().mean().item() - 0.5) < 0.03  # U(-1, 1): E|u| = 1/2
+
+
+def test_episode_noise_runs_a_sequence_in_order_and_draws_a_new_one_past_its_end_or_at_a_restart() -> None:
+    source = EpisodeNoise(1.0, 10, 3, torch.Generator().manual_seed(0))
+    source.restart()
+    sequence = source.sequence
+    taken = torch.stack([source.next() for _ in range(10)])
+    assert torch.equal(taken, sequence)
+    beyond = source.next()
+    assert not torch.equal(source.sequence, sequence) and torch.equal(beyond, source.sequence[0])
+    source.restart()
+    assert source.position == 0 and torch.equal(source.next(), source.sequence[0])
+
+
+def test_acting_with_given_noise_is_tanh_of_mean_plus_std_times_it() -> None:
+    """act_batch(noise=eps): a = tanh(mean + std * eps) for each observation's row of eps; zero eps: the mean
+    action; torch's generator untouched."""
+    agent = SACAgent(tiny(), 2)
+    observations = np.random.default_rng(0).integers(0, 256, (3, SIZE, SIZE, 3), dtype=np.uint8)
+    with torch.no_grad():
+        mean, log_std = agent.actor(agent.encoder(agent.images(observations)))
+    eps = torch.tensor([[0.0, 0.0], [1.0, -1.0], [2.0, 0.5]])
+    state = torch.get_rng_state()
+    actions = agent.act_batch(observations, noise=eps)
+    assert torch.equal(torch.get_rng_state(), state)
+    expected = torch.tanh(mean.float() + log_std.float().exp() * eps).numpy()
+    np.testing.assert_allclose(actions, expected, atol=1e-5)
+    np.testing.assert_allclose(actions[0], agent.act_batch(observations[:1], deterministic=True)[0], atol=1e-6)
 
 
 # ---------------------------------------------------------------------------------------------- SAC
