@@ -35,7 +35,7 @@ FLOAT_MAXIMA: dict[str, float] = {
 }  # fmt: skip
 RETIRED_FIELDS = frozenset({"classifier_beside_updates"})
 """Fields that runs stored by earlier versions may hold and that no longer change anything: dropped when read."""
-FIELDS_BEFORE_THEY_EXISTED: dict[str, Any] = {"critic_layer_norm": False}
+FIELDS_BEFORE_THEY_EXISTED: dict[str, Any] = {"critic_layer_norm": False, "exploration_noise_beta": 0.0}
 """Fields whose default now differs from what runs stored before the field existed did: a stored config without
 one reads as it ran."""
 DEVICE_PATTERN = re.compile(r"cpu|cuda(:(1[0-5]|[0-9]))?")
@@ -119,9 +119,9 @@ class SACConfig:
     """Target policy entropy; None means -dim(A)."""
     initial_random_steps: int = 1000
     """Uniform random actions before the policy acts (and before updates start)."""
-    exploration_noise_beta: float = 0.0
+    exploration_noise_beta: float = 1.0
     """Colour of the acting policy's noise over an episode, power spectrum ~ 1/f^beta (Eberhard et al. 2023; the
-    warm-up's actions too): 0 white, SAC's i.i.d. draws; 1 pink; 2 red."""
+    warm-up's actions too): 1 pink; 0 white, SAC's i.i.d. draws; 2 red."""
     updates_per_step: int = 2
     """Gradient steps per environment step (with a real-time actor: at most this many; fewer when slower); 1: SAC's."""
     n_step: int = 1
@@ -381,12 +381,13 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
 
     @classmethod
     def paper(cls, **overrides: Any) -> "TrainConfig":
-        """The paper's code as released: its conv net, separate per network, no augmentation, fp32, SAC's critics
-        and one update per env step, its classifier schedule (10 steps per epoch at lr 1e-4), and replay alone as
-        f_psi's negatives."""
+        """The paper's code as released: its conv net, separate per network, no augmentation, fp32, SAC's critics,
+        i.i.d. action noise and one update per env step, its classifier schedule (10 steps per epoch at lr 1e-4),
+        and replay alone as f_psi's negatives."""
         faithful = cls(
             encoder="paper", shared_encoder=False, augmentation="none", precision="fp32", critic_layer_norm=False,
             updates_per_step=1, classifier_steps=10, classifier_lr=1e-4, no_answer_share=0.0,
+            exploration_noise_beta=0.0,
         )  # fmt: skip
         return replace(faithful, **overrides)
 

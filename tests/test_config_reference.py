@@ -5,6 +5,7 @@ import subprocess
 import sys
 from dataclasses import fields
 
+import pytest
 from conftest import ROOT
 from fastapi.testclient import TestClient
 
@@ -60,13 +61,17 @@ def test_the_paper_preset_is_the_published_algorithm_whatever_the_defaults() -> 
     assert (paper.n_step, paper.updates_per_step, paper.critic_layer_norm) == (1, 1, False)
     assert not paper.reward_centering
     assert paper.classifier_label_smoothing == paper.classifier_gradient_penalty == 0.0
+    assert paper.exploration_noise_beta == 0.0  # SAC's i.i.d. action noise
     assert TrainConfig().no_answer_share == 0.25
 
 
-def test_a_run_stored_before_layernorm_critics_resumes_as_it_ran() -> None:
-    """A stored config without critic_layer_norm (runs from before the field) keeps SAC's critics; new runs get
-    the LayerNorm ones."""
-    stored = {name: value for name, value in TrainConfig().to_dict().items() if name != "critic_layer_norm"}
-    assert TrainConfig.from_dict(stored).critic_layer_norm is False
-    assert TrainConfig().critic_layer_norm is True
-    assert TrainConfig.from_dict(TrainConfig().to_dict()).critic_layer_norm is True
+@pytest.mark.parametrize(
+    ("name", "before", "now"), [("critic_layer_norm", False, True), ("exploration_noise_beta", 0.0, 1.0)]
+)
+def test_a_run_stored_before_a_field_resumes_as_it_ran(name: str, before: object, now: object) -> None:
+    """A stored config without the field (runs from before it) keeps what they ran with (SAC's critics, i.i.d.
+    action noise); new runs get the new default (LayerNorm critics, pink noise)."""
+    stored = {field: value for field, value in TrainConfig().to_dict().items() if field != name}
+    assert getattr(TrainConfig.from_dict(stored), name) == before
+    assert getattr(TrainConfig(), name) == now
+    assert getattr(TrainConfig.from_dict(TrainConfig().to_dict()), name) == now
