@@ -630,12 +630,12 @@ def test_the_updates_run_on_the_update_thread_while_the_loop_acts_steps_and_scor
     acting_copy = trainer.acting_copy
     act_batch = acting_copy.act_batch
 
-    def act(observations: np.ndarray, deterministic: bool = False) -> np.ndarray:
+    def act(observations: np.ndarray, deterministic: bool = False, noise: torch.Tensor | None = None) -> np.ndarray:
         order.append("A")
         # (this batch's updates wait for the scoring below, so the live pi is still as the last batch left it)
         live = trainer.agent.act_batch(observations, deterministic=True)
         same_as_live.append(np.array_equal(act_batch(observations, deterministic=True), live))
-        return act_batch(observations, deterministic)
+        return act_batch(observations, deterministic, noise)
 
     acting_copy.act_batch = act
     score_full_batch = trainer.queries.score_full_batch
