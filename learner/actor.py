@@ -35,7 +35,7 @@ import torch
 from contract.config import TrainConfig
 from contract.envs import display_image, encode_png, make_env, model_image, scale_action
 from contract.store import Store
-from learner.exploration import EpisodeNoise, uniform_of
+from learner.exploration import EpisodeNoise, warm_up_action
 from learner.sac import SACAgent
 
 CONTROL_POLL_SECONDS = 0.05
@@ -264,15 +264,14 @@ class _Actor:
 
     def _action(self, obs: np.ndarray) -> np.ndarray:
         """In an evaluation episode the policy's mean action; else uniformly random before the warm-up's end or the
-        first weights, then the policy's sample."""
+        first weights, then the policy's sample (both following the episode's coloured noise, when there is one)."""
         if self.controls.evaluation_round is not None:
             return self.agent.act_batch(obs[None], deterministic=True)[0]
-        noise = None if self.noise is None else self.noise.next()[None]
+        noise = None if self.noise is None else self.noise.next()
         if self.step < self.config.initial_random_steps or not self.has_policy:
-            if noise is None:
-                return self.rng.uniform(-1.0, 1.0, self.action_space.shape).astype(np.float32)
-            return uniform_of(noise[0]).numpy()
-        return self.agent.act_batch(obs[None], deterministic=False, generator=self.generator, noise=noise)[0]
+            return warm_up_action(noise, self.rng, int(self.action_space.shape[0]))
+        eps = None if noise is None else noise[None]
+        return self.agent.act_batch(obs[None], deterministic=False, generator=self.generator, noise=eps)[0]
 
     def _set_state(self, state: str) -> None:
         if state != self.state:

@@ -9,6 +9,7 @@ beta 0 is white noise (SAC's own), 1 pink, 2 red (a random walk). Each episode d
 
 import math
 
+import numpy as np
 import torch
 
 
@@ -36,6 +37,13 @@ def uniform_of(noise: torch.Tensor) -> torch.Tensor:
     """N(0, 1) noise mapped to U(-1, 1) through the Gaussian CDF (2 Phi(x) - 1 = erf(x / sqrt 2)): the warm-up's
     uniform actions, correlated as the noise is."""
     return torch.erf(noise / math.sqrt(2.0))
+
+
+def warm_up_action(noise: torch.Tensor | None, rng: np.random.Generator, dims: int) -> np.ndarray:
+    """A warm-up action in [-1, 1]^dims: i.i.d. uniform from `rng`, or this step's coloured eps made uniform."""
+    if noise is None:
+        return rng.uniform(-1.0, 1.0, dims).astype(np.float32)
+    return uniform_of(noise).cpu().numpy()
 
 
 class EpisodeNoise:

@@ -63,7 +63,7 @@ from learner.checkpoint import checkpoint_url as checkpoint_location
 from learner.checkpoint import load_checkpoint, load_json, save_checkpoint, save_json
 from learner.env_workers import ProcessEnv, process_envs
 from learner.evaluation import Evaluator, eval_env_count
-from learner.exploration import EpisodeNoise, uniform_of
+from learner.exploration import EpisodeNoise, warm_up_action
 from learner.networks import resolve_precision
 from learner.query_channel import QueryChannel
 from learner.replay import ReplayBuffer
@@ -408,10 +408,7 @@ class Trainer:
         noise = torch.stack([source.next() for source in sources]) if sources else None
         random = [index for index in range(len(episodes)) if first + index < cfg.initial_random_steps]
         for index in random:
-            if noise is None:
-                actions[index] = self.rng.uniform(-1.0, 1.0, self.action_dim)
-            else:
-                actions[index] = uniform_of(noise[index]).cpu().numpy()
+            actions[index] = warm_up_action(None if noise is None else noise[index], self.rng, self.action_dim)
         acting = [index for index in range(len(episodes)) if index not in random]
         if acting:
             observations = np.stack([episodes[index].obs for index in acting])
