@@ -285,7 +285,8 @@ def squashed_gaussian_sample(
     else:
         if noise is None:
             noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
-        noise = noise.to(mean.dtype)
+        else:  # (given noise: converted once, here; the updates' own draws are already in mean's dtype)
+            noise = noise.to(mean.dtype)
         u = mean + log_std.exp() * noise
     gaussian = (-0.5 * noise.pow(2) - log_std - _HALF_LOG_2PI).sum(-1)
     correction = (2.0 * (_LOG_2 - u - F.softplus(-2.0 * u))).sum(-1)
