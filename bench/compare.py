@@ -65,10 +65,13 @@ def first_at_least(curve: list[tuple[float, float]], rate: float) -> int | None:
     return next((int(step) for step, value in curve if value >= rate - 1e-9), None)
 
 
-def by_method(run_dirs: list[Path], out: Path, title: str, until: int | None = None) -> list[str]:
-    """The mean-and-spread plot per method and its Markdown table (returned as lines); `until`: the last env
-    step compared (the comparison's horizon)."""
-    runs: dict[str, list[tuple[dict[str, object], list[tuple[float, float]]]]] = {}
+MethodRuns = dict[str, list[tuple[dict[str, object], list[tuple[float, float]]]]]
+"""Per reward method, each run's summary.json and its eval success curve."""
+
+
+def runs_by_method(run_dirs: list[Path], until: int | None = None) -> MethodRuns:
+    """Each run's summary and curve, grouped by method; `until`: the last env step compared (the horizon)."""
+    runs: MethodRuns = {}
     for run_dir in run_dirs:
         if not (run_dir / "summary.json").exists():  # a run that died before its first summary
             print(f"{run_dir}: no summary.json, left out", file=sys.stderr)
@@ -76,15 +79,19 @@ def by_method(run_dirs: list[Path], out: Path, title: str, until: int | None = N
         summary = json.loads((run_dir / "summary.json").read_text())
         curve = [(step, value) for step, value in success_curve(run_dir) if until is None or step <= until]
         runs.setdefault(method_of(summary), []).append((summary, curve))
-    methods = [name for name in ALGORITHMS if name in runs]  # the one list of methods, in its order
+    return {name: runs[name] for name in ALGORITHMS if name in runs}  # the one list of methods, in its order
+
+
+def method_table(runs: MethodRuns) -> tuple[list[str], dict[str, list], dict[str, list]]:
+    """The Markdown table per method, and each method's mean curve and spread (min to max) to plot."""
     series, bands = {}, {}
     lines = [
         "| method | seeds | evaluations to | reached 90% | env steps to first 90% (each seed) "
         "| mean eval success over the run | last 5 evaluations | queries (yes), each seed |",
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
-    for method in methods:
-        curves = [curve for _, curve in runs[method]]
+    for method, members in runs.items():
+        curves = [curve for _, curve in members]
         points = mean_and_spread([{int(step): value for step, value in curve} for curve in curves])
         if not points:  # its seeds share no evaluation (one stopped before its first)
             lines.append(f"| {method} | {len(curves)} | no evaluation every seed reached | - | - | - | - | - |")
@@ -95,13 +102,19 @@ def by_method(run_dirs: list[Path], out: Path, title: str, until: int | None = N
         means = [mean for _, mean, *_ in points]
         reached = [first_at_least([(s, v) for s, v in curve if s <= points[-1][0]], 0.9) for curve in curves]
         # (queries: each run's whole count, also where it ran past `until`)
-        queries = ", ".join(f"{summary['queries_asked']} ({summary['queries_yes']})" for summary, _ in runs[method])
+        queries = ", ".join(f"{summary['queries_asked']} ({summary['queries_yes']})" for summary, _ in members)
         lines.append(
             f"| {method} | {len(curves)} | {points[-1][0]:,.0f} | {sum(r is not None for r in reached)} of "
             f"{len(curves)} | {', '.join(f'{r:,}' if r is not None else '-' for r in reached)} "
             f"| {sum(means) / len(means):.0%} | {sum(means[-5:]) / len(means[-5:]):.0%} | "
             f"{queries if ALGORITHM_SPECS[method].queries else '-'} |"
         )
+    return lines, series, bands
+
+
+def by_method(run_dirs: list[Path], out: Path, title: str, until: int | None = None) -> list[str]:
+    """The mean-and-spread plot per method written to `out`, and its Markdown table (returned as lines)."""
+    lines, series, bands = method_table(runs_by_method(run_dirs, until))
     line_plot(out, series, title=title, y_range=(0.0, 1.0), bands=bands)
     return lines
 

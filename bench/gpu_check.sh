@@ -26,8 +26,8 @@
 #                                            target, its budget or MINUTES (resumable: run it again), rows in
 #                                            $OUT/seeds.csv (NOISE=0.1: the noisy oracle's runs instead)
 #   bash bench/gpu_check.sh compare MINUTES  the paper's comparison on the pusher: every reward method x seeds 0-2
-#                                            side by side, to 30K env steps each or MINUTES, then
-#                                            bench/compare.py --by-method (METHODS, SEEDS: fewer, to try it)
+#                                            side by side, to 15K env steps each (docs/results.md's horizon) or
+#                                            MINUTES, then bench/compare.py --by-method (METHODS, SEEDS: fewer)
 set -u
 phase=${1:-speed}
 minutes=${2:-6}
@@ -149,8 +149,8 @@ if [ "$phase" = compare ]; then
   for method in $methods; do
     for seed in ${SEEDS:-0 1 2}; do
       compared+=("$runs/compare/pusher-$method-seed$seed")
-      python3 bench/learn.py --task pusher --algorithm "$method" --seed "$seed" --max-minutes "$minutes" \
-        --total-steps 30000 --set device="$device" replay_pipeline=device \
+      python3 bench/learn.py --task pusher --algorithm "$method" --task-settings --seed "$seed" \
+        --max-minutes "$minutes" --total-steps 15000 --set device="$device" replay_pipeline=device \
         --out "$runs/compare/pusher-$method-seed$seed" > "$logs/pusher-$method-seed$seed.txt" 2>&1 &
     done
   done
@@ -158,7 +158,7 @@ if [ "$phase" = compare ]; then
   for run in "${compared[@]}"; do tail -n 40 "$run/learn.log" > "$run/learn-tail.log" 2>/dev/null; done
   tar czf "$OUT/compare.tar.gz" "$runs"/compare/*/curve.csv "$runs"/compare/*/summary.json "$runs"/compare/*/learn-tail.log \
     "$logs"/pusher-*.txt
-  python3 bench/compare.py --by-method --until 30000 "${compared[@]}" --out "$OUT/pusher-methods.png" \
+  python3 bench/compare.py --by-method --until 15000 "${compared[@]}" --out "$OUT/pusher-methods.png" \
     --title "pusher: eval success, mean and min-max over seeds" | tee "$OUT/pusher-methods.md"
   exit 0
 fi
