@@ -27,7 +27,6 @@ sys.path.insert(0, str(ROOT))
 
 from bench.compare import method_table, runs_by_method  # noqa: E402
 from bench.plot import line_plot  # noqa: E402
-from bench.seeds import MEDIAN_TARGETS  # noqa: E402
 from bench.seeds import TARGETS as SEED_TARGETS  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
@@ -69,14 +68,14 @@ def seed_rows(path: Path) -> dict[str, list[dict[str, str]]]:
 
 
 def within_target(row: dict[str, str]) -> bool:
-    _, budget, max_queries = SEED_TARGETS[row["task"]]
+    _, budget, max_queries, _ = SEED_TARGETS[row["task"]]
     steps = row["steps_to_target"]
     return steps != "" and int(steps) <= budget and int(row["queries"]) <= max_queries
 
 
 def target_text(task: str) -> str:
-    target, budget, max_queries = SEED_TARGETS[task]
-    median = f", median ≤ {thousands(MEDIAN_TARGETS[task])}" if task in MEDIAN_TARGETS else ""
+    target, budget, max_queries, median_steps = SEED_TARGETS[task]
+    median = f", median ≤ {thousands(median_steps)}" if median_steps else ""
     return f"{target:.0%} within {thousands(budget)}{median}, ≤ {max_queries} queries"
 
 
