@@ -48,8 +48,10 @@ def median(values: list[float]) -> float | None:
     return statistics.median(values) if values else None
 
 
-def compare_runs() -> list[Path]:
-    return sorted(folder for folder in COMPARE_RUNS.iterdir() if folder.is_dir()) if COMPARE_RUNS.exists() else []
+def comparison() -> tuple[list[str], dict[str, list], dict[str, list]]:
+    """The comparison's table, and each method's mean curve and spread, from docs/results/compare/."""
+    folders = sorted(folder for folder in COMPARE_RUNS.iterdir() if folder.is_dir()) if COMPARE_RUNS.exists() else []
+    return method_table(runs_by_method(folders, COMPARE_UNTIL))
 
 
 def seed_rows(path: Path) -> dict[str, list[dict[str, str]]]:
@@ -68,9 +70,8 @@ def seed_rows(path: Path) -> dict[str, list[dict[str, str]]]:
 
 
 def within_target(row: dict[str, str]) -> bool:
-    _, budget, max_queries, _ = SEED_TARGETS[row["task"]]
     steps = row["steps_to_target"]
-    return steps != "" and int(steps) <= budget and int(row["queries"]) <= max_queries
+    return SEED_TARGETS[row["task"]].met_by(int(steps) if steps else None, int(row["queries"]))
 
 
 def target_text(task: str) -> str:
@@ -126,7 +127,7 @@ def per_seed_lines(by_task: dict[str, list[dict[str, str]]]) -> list[str]:
 def generated_tables() -> dict[str, list[str]]:
     """Each generated table's lines, by name."""
     rows, noisy = seed_rows(SEEDS_CSV), seed_rows(NOISE_CSV)
-    compared, _, _ = method_table(runs_by_method(compare_runs(), COMPARE_UNTIL))
+    compared, _, _ = comparison()
     return {
         "summary": summary_lines(rows), "seeds": per_seed_lines(rows), "noise": per_seed_lines(noisy),
         "compare": compared,
@@ -162,7 +163,7 @@ def write_tables(*, check: bool) -> int:
 
 
 def plot_comparison() -> None:
-    _, series, bands = method_table(runs_by_method(compare_runs(), COMPARE_UNTIL))
+    _, series, bands = comparison()
     title = "pusher: eval success, mean and min-max over seeds 0-2, per reward method"
     line_plot(COMPARE_PLOT, series, title=title, y_range=(0.0, 1.0), bands=bands)
     print(f"plot: {COMPARE_PLOT.relative_to(ROOT)}")

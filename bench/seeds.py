@@ -41,6 +41,11 @@ class Target(NamedTuple):
     median_steps: int | None = None
     """where set: the most env steps the seeds' median may take to it (the paper's robot: 6.2K)"""
 
+    def met_by(self, steps_to_target: int | None, queries: int, *, budget: int | None = None) -> bool:
+        """A seed reached the rate within the budget (this target's unless given), asking at most max_queries."""
+        within = steps_to_target is not None and steps_to_target <= (budget or self.budget)
+        return within and queries <= self.max_queries
+
 
 TARGETS: dict[str, Target] = {
     "pusher": Target(0.9, 20_000, 25, median_steps=12_000),
@@ -194,9 +199,7 @@ def report(args: argparse.Namespace, seeds: list[int], target: float, budget: in
     for result in results:
         steps = f"{result.steps_to_target:,}" if result.steps_to_target else f"not reached ({result.env_steps:,})"
         print(f"| {result.seed} | {steps} | {result.queries} | {result.queries_yes} | {result.minutes} |")
-    met = [
-        r for r in results if r.steps_to_target is not None and r.steps_to_target <= budget and r.queries <= max_queries
-    ]
+    met = [r for r in results if TARGETS[args.task].met_by(r.steps_to_target, r.queries, budget=budget)]
     reached = [r.steps_to_target for r in results if r.steps_to_target is not None]
     median = f", median {statistics.median(reached):,.0f} env steps" if reached else ""
     if reached and TARGETS[args.task].median_steps:
