@@ -10,12 +10,18 @@ destination, which holds at most one upload part in memory, never a second copy 
 
 Reads are streamed too: torch.load reads the zip's records through the open file (ranged GETs on S3).
 Everything in a checkpoint is tensors, numbers, strings, lists and dicts, so it loads with weights_only=True.
+
+A write that finds the store full (no space left, or over a quota) raises CheckpointStoreFull, whose message is the
+run's failure reason: "checkpoint store full: …". No temporary file is left behind.
 """
 
+import errno
 import io
 import json
 import os
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +29,10 @@ import torch
 
 from contract.checkpoint_location import FILENAME, checkpoint_path, checkpoint_url, is_remote
 
-__all__ = ["FILENAME", "checkpoint_path", "checkpoint_url", "is_remote", "load_checkpoint", "save_checkpoint"]
+__all__ = [
+    "FILENAME", "CheckpointStoreFull", "checkpoint_path", "checkpoint_url", "is_remote", "load_checkpoint",
+    "save_checkpoint",
+]  # fmt: skip
 
 # Object stores whose writes become visible at once and whole when the upload completes.
 ATOMIC_UPLOAD_PROTOCOLS = frozenset({"s3", "s3a", "gs", "gcs", "az", "abfs", "abfss", "adl"})
@@ -36,8 +45,45 @@ def _local(location: Path | str) -> Path:
     return Path(location.removeprefix("file://"))
 
 
+STORE_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+
+class CheckpointStoreFull(RuntimeError):
+    """The checkpoint store has no room for a write: the run cannot go on until someone frees space."""
+
+
+def _full_store_error(error: BaseException) -> OSError | None:
+    """The OSError "no space left" (or "quota exceeded") that `error` is or was raised while handling, if any
+    (torch.save reports a failed write as a RuntimeError of its own, with the OSError as its context)."""
+    seen: list[BaseException] = []
+    current: BaseException | None = error
+    while current is not None and current not in seen:
+        if isinstance(current, OSError) and current.errno in STORE_FULL_ERRNOS:
+            return current
+        seen.append(current)
+        current = current.__cause__ or current.__context__
+    return None
+
+
+@contextmanager
+def _naming_a_full_store(location: Path | str) -> Iterator[None]:
+    try:
+        yield
+    except Exception as error:
+        full = _full_store_error(error)
+        if full is None:
+            raise
+        raise CheckpointStoreFull(f"checkpoint store full: cannot write {location} ({full.strerror})") from error
+
+
 def save_checkpoint(location: Path | str, state: dict[str, Any]) -> int:
-    """Write `state` to `location` atomically; returns its size in bytes. A crash leaves the old one intact."""
+    """Write `state` to `location` atomically; returns its size in bytes. A crash leaves the old one intact; a full
+    store raises CheckpointStoreFull."""
+    with _naming_a_full_store(location):
+        return _save_checkpoint(location, state)
+
+
+def _save_checkpoint(location: Path | str, state: dict[str, Any]) -> int:
     if not is_remote(location):
         return _save_local(_local(location), state)
     import fsspec  # only a learner with a remote checkpoint URL needs it (pip install '.[objectstore]')
@@ -139,19 +185,24 @@ def _save_local(path: Path, state: dict[str, Any]) -> int:
 
 
 def save_json(location: Path | str, value: Any) -> None:
-    """Write `value` as JSON to `location` (a path or fsspec URL), atomically where the file system allows."""
+    """Write `value` as JSON to `location` (a path or fsspec URL), atomically where the file system allows; a full
+    store raises CheckpointStoreFull."""
     data = json.dumps(value, indent=1).encode()
-    if not is_remote(location):
-        path = _local(location)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f"{path.name}.tmp-{uuid.uuid4().hex}")
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-        return
-    import fsspec
+    with _naming_a_full_store(location):
+        if not is_remote(location):
+            path = _local(location)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_name(f"{path.name}.tmp-{uuid.uuid4().hex}")
+            try:
+                tmp.write_bytes(data)
+                os.replace(tmp, path)
+            finally:
+                tmp.unlink(missing_ok=True)
+            return
+        import fsspec
 
-    with fsspec.open(str(location), "wb") as handle:  # object stores replace a file whole
-        handle.write(data)
+        with fsspec.open(str(location), "wb") as handle:  # object stores replace a file whole
+            handle.write(data)
 
 
 def load_json(location: Path | str) -> Any | None:

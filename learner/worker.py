@@ -22,6 +22,7 @@ from types import FrameType
 from contract.envs import BadObservation
 from contract.settings import Settings, get_settings
 from contract.store import NotFound, RunStatus, Store, first_line, is_transient
+from learner.checkpoint import CheckpointStoreFull
 from learner.patient_store import LONGEST_PAUSE_S, patient
 from learner.run_control import cuda_devices
 from learner.train import Outcome, train_run
@@ -92,7 +93,8 @@ def work(
 
 def _train_one(store: Store, run_id: int, settings: Settings, worker: str, interrupt: threading.Event) -> bool:
     """Train one claimed run; a failure marks it failed with the error's first line. A database away for longer
-    than the store's patience is not a failure: the run goes back to the queue. Returns True if it failed."""
+    than the store's patience is not a failure: the run goes back to the queue. Anything else is: a full checkpoint
+    store, an env's own error (a connection reset included). Returns True if it failed."""
     try:
         run = store.get_run(run_id=run_id)
         outcome = train_run(
@@ -104,7 +106,8 @@ def _train_one(store: Store, run_id: int, settings: Settings, worker: str, inter
                            first_line(error))  # fmt: skip
             _give_back(store, run_id, worker, interrupt)
             return False
-        reason = str(error) if isinstance(error, BadObservation) else first_line(error)  # "<env id>: <problem>"
+        # "<env id>: <problem>", "checkpoint store full: …", else "<error type>: <first line of its message>"
+        reason = str(error) if isinstance(error, BadObservation | CheckpointStoreFull) else first_line(error)
         logger.exception("run %s failed: %s", run_id, reason)
         try:
             store.record_event(run_id=run_id, level="error", message="".join(traceback.format_exception(error))[-4000:])

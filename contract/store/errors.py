@@ -32,7 +32,11 @@ TRANSIENT_MESSAGES = (
 
 
 def is_transient(error: BaseException) -> bool:
-    """Is `error` (or the error it wraps) a database that is briefly away, not a bad statement or bad data?"""
+    """Is `error` (or the error it wraps) a database that is briefly away, not a bad statement or bad data?
+
+    Only the database's own errors count (SQLAlchemy's OperationalError and friends with one of the messages
+    above, or a connection the pool found dropped): an OSError of anything else (a full checkpoint disk, an env's
+    connection reset) is that thing's failure, never a blink."""
     for current in _chain(error):
         if isinstance(current, exc.DBAPIError) and current.connection_invalidated:
             return True
@@ -40,8 +44,6 @@ def is_transient(error: BaseException) -> bool:
             message = str(current).lower()
             if any(text in message for text in TRANSIENT_MESSAGES):
                 return True
-        if isinstance(current, OSError) and current.errno in (28, 111, 104):  # ENOSPC, ECONNREFUSED, ECONNRESET
-            return True
     return False
 
 
