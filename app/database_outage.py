@@ -4,6 +4,9 @@ import threading
 import time
 
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import SQLAlchemyError
+
+from contract.store import first_line, is_transient
 
 RETRY_AFTER_S = 5
 """What a 503 tells a client to wait before it tries again."""
@@ -38,3 +41,12 @@ def database_unavailable(reason: str) -> JSONResponse:
         status_code=503, headers={"Retry-After": str(RETRY_AFTER_S)},
         content={"detail": f"the database is unreachable for now ({reason[:300]}); retry in a few seconds"},
     )  # fmt: skip
+
+
+def database_error_response(error: SQLAlchemyError) -> JSONResponse:
+    """A database that is briefly away (restarting, failing over, its disk full) is a 503 to retry, and /health
+    reports it for a while; any other database error is the server's own 500. Neither carries a traceback."""
+    if not is_transient(error):
+        return JSONResponse(status_code=500, content={"detail": "internal server error"})
+    database_outage.seen(first_line(error))
+    return database_unavailable(first_line(error))

@@ -16,7 +16,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from app.camera import close_cameras
-from app.database_outage import database_outage, database_unavailable
+from app.database_outage import database_error_response
 from app.routers import (
     compare,
     config,
@@ -36,7 +36,7 @@ from app.routers import (
 from app.schemas import errors
 from app.security import RequestGuard
 from contract.settings import Settings, get_settings
-from contract.store import Conflict, InvalidInput, NotFound, Store, first_line, is_transient
+from contract.store import Conflict, InvalidInput, NotFound, Store
 
 ROOT = Path(__file__).resolve().parent.parent
 STATIC_DIR = ROOT / "static"
@@ -113,12 +113,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @app.exception_handler(SQLAlchemyError)
     async def _database(_request: Request, error: SQLAlchemyError) -> JSONResponse:
-        """A database that is briefly away (restarting, failing over, its disk full) is a 503 to retry; /health
-        reports it for a while. Any other database error is the server's own 500."""
-        if not is_transient(error):
-            return JSONResponse(status_code=500, content={"detail": "internal server error"})
-        database_outage.seen(first_line(error))
-        return database_unavailable(first_line(error))
+        return database_error_response(error)
 
     # Requests are matched against the routes in this order: the labelling API, the busiest, first.
     app.include_router(queries.router)

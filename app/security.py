@@ -11,6 +11,8 @@ RequestGuard (an ASGI middleware, outermost) does, in this order, before a byte 
 2. caps the body: a Content-Length over the route's limit is 413 at once; a body without one (chunked) is
    counted as it arrives and refused with 413 as soon as it passes the limit.
 3. adds X-Content-Type-Options: nosniff, a Content-Security-Policy and friends to every response.
+A database that is away while 1. looks up a login session or the token's rate limit is the same JSON 503 with
+Retry-After that the routes answer (app.database_outage).
 """
 
 import ipaddress
@@ -19,11 +21,13 @@ from urllib.parse import quote
 
 from fastapi import HTTPException
 from fastapi.responses import JSONResponse, RedirectResponse
+from sqlalchemy.exc import SQLAlchemyError
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import Headers, MutableHeaders
 from starlette.requests import Request
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from app.database_outage import database_error_response
 from app.deps import AUTHORISED_STATE, UNAUTHORISED_DETAIL, has_bearer_token, is_authorised_async
 from app.routers.goal_sets import MAX_FILES_PER_UPLOAD
 from contract.settings import Settings
@@ -172,7 +176,10 @@ class RequestGuard:
             await send(message)
 
         self._resolve_client(scope)
-        refusal = await self._refusal(scope)
+        try:
+            refusal = await self._refusal(scope)
+        except SQLAlchemyError as error:  # the token's rate limit or a login session met the database away
+            refusal = database_error_response(error)
         if refusal is not None:
             # The body stays unread: uvicorn closes the connection after this response instead of reading it.
             await refusal(scope, receive, send_with_headers)

@@ -402,6 +402,9 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
 
 REAL_ROBOT_GOAL_IMAGES = 80
 """Goal photos the paper gave each real-robot task."""
+FEWEST_GOAL_IMAGES = 10
+"""Goal photos a set needs before the goal-set page stops calling them too few (the simulated tasks' results use
+as many)."""
 
 CONFIG_PARTS: dict[str, type] = {
     "task": TaskConfig, "sac": SACConfig, "networks": NetworkConfig, "classifier": ClassifierConfig,

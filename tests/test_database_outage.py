@@ -4,6 +4,7 @@ finishes, every answer the server acknowledged is kept, and the server answers 5
 database is away."""
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -213,3 +214,68 @@ def test_a_run_goes_on_while_the_sqlite_disk_fills_and_empties(small_disk: Path,
     url = f"sqlite:///{small_disk / 'raq.sqlite3'}"
     run_through_blinks(url, tmp_path, lambda probe: fill_then_empty(small_disk, probe), blinks=2)
     assert shutil.disk_usage(small_disk).free > 0
+
+
+TOKEN = "outage-token"
+
+
+def every_operation(url: str) -> list[tuple[str, str]]:
+    """(method, path) of every operation in the server's OpenAPI spec, each id in a path as 1."""
+    spec = httpx.get(f"{url}/openapi.json", headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30).json()
+    return [
+        (method.upper(), re.sub(r"\{[^}]+\}", "1", path))
+        for path, operations in spec["paths"].items()
+        for method in operations
+    ]
+
+
+def test_every_route_is_a_json_503_while_postgresql_is_stopped_token_set_or_not(
+    postgres: PostgresServer, tmp_path: Path
+) -> None:
+    """With PostgreSQL stopped, every operation of the API and every page answers a JSON 503 with Retry-After
+    (or a 4xx it decides without the database, or a 200 that needs none), with the bearer token, a login
+    cookie, a wrong token or no token at all, and the server logs no traceback."""
+    upgrade(postgres.url)
+    env = {"RAQ_ENV_MODULES": "learner.testing_envs"}
+    (tmp_path / "open").mkdir()
+    (tmp_path / "guarded").mkdir()
+    with (
+        run_live_server(postgres.url, tmp_path / "open", env) as open_server,
+        run_live_server(postgres.url, tmp_path / "guarded", {**env, "RAQ_API_TOKEN": TOKEN}) as guarded,
+    ):
+        operations = every_operation(guarded.url)
+        assert len(operations) > 30 and ("PATCH", "/api/runs/1") in operations
+        callers = [
+            (open_server.url, {}),
+            (guarded.url, {"Authorization": f"Bearer {TOKEN}"}),
+            (guarded.url, {"Authorization": "Bearer a-wrong-token"}),
+            (guarded.url, {"Cookie": "raq_session=a-session-secret"}),
+        ]
+        postgres.stop()
+        try:
+            unavailable: dict[tuple[str, str, str], int] = {}
+            for base, headers in callers:
+                with httpx.Client(base_url=base, headers=headers, timeout=30) as client:
+                    for method, path in [*operations, ("GET", "/"), ("GET", "/queue"), ("GET", "/runs/1")]:
+                        body = {"json": {}} if method in ("POST", "PATCH", "PUT") else {}
+                        response = client.request(method, path, **body)  # type: ignore[arg-type]
+                        where = f"{method} {path} with {headers or 'no token'}: {response.status_code}"
+                        assert response.status_code < 500 or response.status_code == 503, where + response.text
+                        if response.status_code == 503:
+                            assert response.headers["retry-after"] == "5", where
+                            said = response.json()  # /health's own report, or the routes' detail
+                            assert said.get("status") == "error" or "unreachable" in said["detail"], (
+                                where + response.text
+                            )
+                        unavailable[(base, method, path)] = response.status_code
+            assert unavailable[(open_server.url, "PATCH", "/api/runs/1")] == 503
+            assert unavailable[(open_server.url, "GET", "/")] == 503
+            # with the token set, every route but the public ones meets the database before anything else
+            guarded_codes = {code for (base, _m, _p), code in unavailable.items() if base == guarded.url}
+            assert guarded_codes == {503}, guarded_codes
+        finally:
+            postgres.start()
+        for server in (open_server, guarded):
+            assert "Traceback" not in server.log_path.read_text(), server.log_path.read_text()[-3000:]
+            back = httpx.get(f"{server.url}/api/runs", headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30)
+            assert back.status_code == 200, back.text  # the database is back: so is every route
