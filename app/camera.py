@@ -31,7 +31,7 @@ import numpy as np
 from PIL import Image
 
 from contract.envs import SIM_ENV_IDS, encode_png, env_class, make_env, module_env_ids
-from contract.images import model_view
+from contract.images import VIEWPOINT_SIMILARITY, model_view, viewpoint_similarity
 from contract.store import NotFound, Store
 from robot.base import RobotEnv
 
@@ -278,7 +278,7 @@ class PhotoDifference:
     """One way an uploaded photo differs from the camera's frame, in plain words."""
 
     kind: str
-    """aspect, size, colour or contrast."""
+    """aspect, size, colour, contrast, or viewpoint."""
     message: str
 
 
@@ -352,3 +352,18 @@ def photo_differences(photo: Image.Image, frame: np.ndarray, model_size: int) ->
             f"camera's {frame_spread:.0f}).",
         ))  # fmt: skip
     return found
+
+
+def viewpoint_difference(photo: Image.Image, set_photos: list[Image.Image]) -> PhotoDifference | None:
+    """The photo is from another viewpoint than the set's other photos: its edges run elsewhere than theirs
+    (contract.images.viewpoint_similarity below VIEWPOINT_SIMILARITY), whatever its brightness. None when it looks
+    like them, or the set has too few photos to tell."""
+    similarity = viewpoint_similarity(photo, set_photos)
+    if similarity is None or similarity >= VIEWPOINT_SIMILARITY:
+        return None
+    return PhotoDifference(
+        "viewpoint",
+        f"Another viewpoint: the photo's edges and shapes are unlike those of the set's {len(set_photos)} other "
+        f"photos (structure similarity {similarity:.2f}, below {VIEWPOINT_SIMILARITY:.2f}). Take goal photos from "
+        "the robot camera's point of view.",
+    )

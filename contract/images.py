@@ -156,3 +156,47 @@ def decoded_array(data: bytes) -> np.ndarray:
     """Stored PNG (or other image) bytes as (height, width, 3) uint8 RGB, at the size they were stored."""
     with Image.open(io.BytesIO(data)) as image:
         return np.array(image.convert("RGB"))
+
+
+STRUCTURE_SIDE = 32
+"""Side of the model's view the structure descriptor is taken from."""
+STRUCTURE_CELLS = 2
+"""The view is split into STRUCTURE_CELLS x STRUCTURE_CELLS cells, each with its own orientation histogram."""
+STRUCTURE_BINS = 8
+"""Edge orientations (0-180 degrees) per histogram."""
+VIEWPOINT_SIMILARITY = 0.3
+"""A photo whose median structure similarity to the set's other photos is below this is from another viewpoint
+(photos of the pusher from its task camera: 0.5 or more to one another, brighter or not; from above: under 0.05)."""
+VIEWPOINT_MIN_PHOTOS = 3
+"""Other photos a set needs before a photo is compared with them."""
+
+
+def structure_descriptor(image: Image.Image) -> np.ndarray:
+    """Where the edges of the model's view run: a histogram of gradient orientations weighted by their strength in
+    each of STRUCTURE_CELLS^2 cells of the centre square, scaled to unit length. It does not change when the light
+    is brighter or darker (only its balance, not its scale, enters), but does when the camera looks from elsewhere."""
+    gray = np.asarray(model_view(image, STRUCTURE_SIDE).convert("L"), dtype=np.float64)
+    dy, dx = np.gradient(gray)
+    strength = np.hypot(dx, dy)
+    orientation = np.minimum((np.mod(np.arctan2(dy, dx), np.pi) / np.pi * STRUCTURE_BINS).astype(int),
+                             STRUCTURE_BINS - 1)  # fmt: skip
+    cell = STRUCTURE_SIDE // STRUCTURE_CELLS
+    histograms = [
+        np.bincount(
+            orientation[row : row + cell, col : col + cell].ravel(),
+            weights=strength[row : row + cell, col : col + cell].ravel(), minlength=STRUCTURE_BINS,
+        )
+        for row in range(0, STRUCTURE_SIDE, cell) for col in range(0, STRUCTURE_SIDE, cell)
+    ]  # fmt: skip
+    descriptor = np.concatenate(histograms)
+    norm = float(np.linalg.norm(descriptor))
+    return descriptor / norm if norm > 0 else descriptor
+
+
+def viewpoint_similarity(photo: Image.Image, others: list[Image.Image]) -> float | None:
+    """The median cosine similarity of the photo's structure descriptor to the other photos' (1: the same edges in
+    the same places); None with fewer than VIEWPOINT_MIN_PHOTOS others."""
+    if len(others) < VIEWPOINT_MIN_PHOTOS:
+        return None
+    mine = structure_descriptor(photo)
+    return float(np.median([float(mine @ structure_descriptor(other)) for other in others]))

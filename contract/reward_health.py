@@ -14,6 +14,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
+from contract.config import FEWEST_GOAL_IMAGES
+
 Level = Literal["learning", "stuck", "watch", "too early"]
 Series = Sequence[tuple[int, float]]
 """(env step, value) pairs of one metric, oldest first."""
@@ -102,7 +104,7 @@ def reward_verdict(
             f"f_psi agrees with only {agreement[-1][1]:.0%} of your answers: it has learned something other than "
             "what you call a success.",
             "Check that the goal photos are framed like the camera's view (the goal set's Framing panel) and show "
-            "only successes; more goal photos (10 or more) help.",
+            f"only successes; more goal photos ({FEWEST_GOAL_IMAGES} or more) help.",
         )
     if len(recent) >= MIN_QUERIES and yes == 0:
         flat = _flat(classifier_return)

@@ -30,7 +30,7 @@ function addedMessage(stored) {
   const warned = stored.filter((example) => example.warnings && example.warnings.length);
   const notes = [
     ...cropped.map((example) => `${example.filename}: ${example.crop_note}.`),
-    ...warned.map((example) => `${example.filename} differs from the robot camera's view: ${example.warnings.map((w) => w.message).join(" ")}`),
+    ...warned.map((example) => `${example.filename} differs from the robot camera's view or the set's photos: ${example.warnings.map((w) => w.message).join(" ")}`),
   ].join(" ");
   const kind = warned.length ? "warn" : cropped.length ? "info" : "ok";
   return { kind, text: `Added ${plural(stored.length, "photo")}. ${notes}`.trim() };
@@ -43,9 +43,10 @@ async function uploadFiles(goalSetId, files) {
   const envId = cameraToCompare();
   const clean = [];
   const flagged = [];
-  if (envId) {
-    statusBox("info", `Comparing ${plural(files.length, "photo")} with the robot camera…`);
-    const params = new URLSearchParams({ env_id: envId });
+  const photosInSet = document.querySelectorAll("#examples .example").length;
+  if (envId || photosInSet) {
+    statusBox("info", `Comparing ${plural(files.length, "photo")} with ${envId ? "the robot camera" : "the set's photos"}…`);
+    const params = new URLSearchParams(envId ? { env_id: envId } : {});
     for (const file of files) {
       const form = new FormData();
       form.append("file", file, file.name);
@@ -61,7 +62,7 @@ async function uploadFiles(goalSetId, files) {
   }
   flagged.forEach(({ file, check }) => showPhotoWarning(goalSetId, file, check));
   if (!clean.length) {
-    statusBox("warn", `${plural(flagged.length, "photo")} differ${flagged.length === 1 ? "s" : ""} from the robot camera's view: see below.`);
+    statusBox("warn", `${plural(flagged.length, "photo")} differ${flagged.length === 1 ? "s" : ""} from ${envId ? "the robot camera's view" : "the set's photos"}: see below.`);
     return;
   }
   const stored = await sendUpload(goalSetId, clean.map(({ file }) => file));
@@ -74,7 +75,7 @@ async function uploadFiles(goalSetId, files) {
     return;
   }
   stored.forEach(addExample);
-  statusBox("warn", `${message.text} ${plural(flagged.length, "photo")} differ${flagged.length === 1 ? "s" : ""} from the robot camera's view: see below.`);
+  statusBox("warn", `${message.text} ${plural(flagged.length, "photo")} differ${flagged.length === 1 ? "s" : ""} from ${envId ? "the robot camera's view" : "the set's photos"}: see below.`);
 }
 
 function pendingWarnings() {
@@ -85,18 +86,19 @@ function pendingWarnings() {
 function showPhotoWarning(goalSetId, file, check) {
   const photoUrl = URL.createObjectURL(file);
   const camera = check.camera;
-  const frameUrl = `${camera.frame_url}&t=${Date.now()}`;
-  const source = camera.source === "camera" ? "" : `, seen through ${camera.source}'s actor`;
+  const cameraFigure = camera
+    ? el("figure", {}, el("img", { class: "camera", src: `${camera.frame_url}&t=${Date.now()}`, alt: "the robot camera's frame" }),
+      el("figcaption", {}, `the camera now (${camera.width}×${camera.height}${camera.source === "camera" ? "" : `, seen through ${camera.source}'s actor`})`))
+    : null;
   const use = el("button", { class: "btn primary use-anyway", type: "button" }, "Use anyway");
   const discard = el("button", { class: "btn discard", type: "button" }, "Discard");
   const card = el("div", { class: "photo-warning alert warn", "data-filename": file.name },
-    el("div", {}, el("b", {}, `${file.name} does not look like the robot camera's view:`)),
+    el("div", {}, el("b", {}, `${file.name} does not look like ${camera ? "the robot camera's view" : "the set's other photos"}:`)),
     el("ul", {}, ...check.warnings.map((warning) => el("li", { "data-kind": warning.kind }, warning.message))),
     el("div", { class: "photo-compare" },
       el("figure", {}, el("img", { class: "photo", src: photoUrl, alt: `your photo ${file.name}` }),
         el("figcaption", {}, `your photo (${check.photo.width}×${check.photo.height})`)),
-      el("figure", {}, el("img", { class: "camera", src: frameUrl, alt: "the robot camera's frame" }),
-        el("figcaption", {}, `the camera now (${camera.width}×${camera.height}${source})`))),
+      cameraFigure),
     el("div", { class: "photo-warning-actions" }, use, discard));
   const done = (kind, text) => {
     URL.revokeObjectURL(photoUrl);
@@ -141,10 +143,12 @@ function addExample(example) {
   updateAdvice();
 }
 
-/** The photo count and its advice, as the page's template words them. */
+/** The photo count in the header and its advice, as the page's template words them. */
 function updateAdvice() {
   const advice = document.getElementById("goal-photo-advice");
   const count = document.querySelectorAll("#examples .example").length;
+  const total = document.getElementById("goal-set-photo-total");
+  if (total) total.textContent = plural(count, "photo");
   if (!advice) return;
   const fewest = Number(advice.dataset.fewest || 0);
   advice.className = count < fewest ? "alert warn" : "small muted";

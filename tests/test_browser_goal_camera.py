@@ -56,8 +56,10 @@ def test_capture_from_the_robot_camera_and_a_photo_unlike_it_shown_beside_it(
     expect(page.locator("#examples .example img.model")).to_have_js_property("naturalWidth", 48)
     expect(page.locator("#examples .example figcaption").nth(1)).to_have_text("original (512×384)")
     expect(page.locator("#goal-photo-advice")).to_contain_text("1 photo: too few")
+    expect(page.locator("#goal-set-photo-total")).to_have_text("1 photo")  # the header counts it, no reload
     page.locator("body").press("c")
     expect(page.locator("#examples .example")).to_have_count(2)
+    expect(page.locator("#goal-set-photo-total")).to_have_text("2 photos")
     examples = store.list_goal_examples(goal_set_id=goal_set.id)
     assert [(e.source, e.width, e.height) for e in examples] == [("camera", 512, 384)] * 2
     _shot(page, "16-02-goal-set-captured")

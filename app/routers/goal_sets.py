@@ -1,14 +1,25 @@
 """Goal sets and their goal photos: create, upload (one or several at once), list, images, delete; goals from
 the robot's own camera (its live frame, Capture) and the check of a photo against that camera (app.camera)."""
 
+import io
 from datetime import UTC, datetime
 from pathlib import PurePosixPath, PureWindowsPath
 from typing import Annotated, Any, Literal
 from urllib.parse import urlencode
 
 from fastapi import APIRouter, File, HTTPException, Query, Response, UploadFile, status
+from PIL import Image
 
-from app.camera import CameraFrame, CameraUnavailable, camera_env_ids, cameras, has_camera, photo_differences
+from app.camera import (
+    CameraFrame,
+    CameraUnavailable,
+    PhotoDifference,
+    camera_env_ids,
+    cameras,
+    has_camera,
+    photo_differences,
+    viewpoint_difference,
+)
 from app.deps import GoalExampleId, GoalSetId, ReadAuth, SettingsDep, StoreDep, WriteAuth
 from app.schemas import (
     WRITE_ERRORS,
@@ -175,9 +186,11 @@ def upload_goal_examples(
         for image in prepared
     ]
     frame = _set_camera_frame(goal_set, settings, store)
+    set_photos = _set_photos(store, goal_set_id)
     return [
         UploadedGoalExampleOut.model_validate(
-            row_with(example, warnings=_warnings(image.original, frame, goal_set, settings)), from_attributes=True
+            row_with(example, warnings=_warnings(image.original, example.id, frame, goal_set, settings, set_photos)),
+            from_attributes=True,
         )
         for example, image in zip(stored, prepared, strict=True)
     ]
@@ -265,14 +278,32 @@ def _set_camera_frame(goal_set: GoalSet, settings: Settings, store: Store) -> Ca
         return None
 
 
-def _warnings(photo: bytes, frame: CameraFrame | None, goal_set: GoalSet, settings: Settings) -> list[PhotoWarningOut]:
-    if frame is None:
-        return []
+def _set_photos(store: Store, goal_set_id: int) -> dict[int, Image.Image]:
+    """The model's view of each photo of the set, by example id."""
+    return {
+        example.id: Image.open(io.BytesIO(store.goal_example_image(example_id=example.id, kind="model")))
+        for example in store.list_goal_examples(goal_set_id=goal_set_id)
+    }
+
+
+def _differences(
+    image: Image.Image, frame: CameraFrame | None, goal_set: GoalSet, set_photos: list[Image.Image]
+) -> list[PhotoWarningOut]:
+    """How a photo differs from the camera's frame (when there is one) and from the viewpoint of the set's photos."""
+    found: list[PhotoDifference] = [] if frame is None else photo_differences(image, frame.pixels, goal_set.image_size)
+    viewpoint = viewpoint_difference(image, set_photos)
+    if viewpoint is not None:
+        found.append(viewpoint)
+    return [PhotoWarningOut(kind=item.kind, message=item.message) for item in found]
+
+
+def _warnings(
+    photo: bytes, example_id: int, frame: CameraFrame | None, goal_set: GoalSet, settings: Settings,
+    set_photos: dict[int, Image.Image],
+) -> list[PhotoWarningOut]:  # fmt: skip
     image = decode_upload(photo, max_bytes=max(len(photo), 1), max_pixels=settings.max_image_pixels)
-    return [
-        PhotoWarningOut(kind=found.kind, message=found.message)
-        for found in photo_differences(image, frame.pixels, goal_set.image_size)
-    ]
+    others = [other for other_id, other in set_photos.items() if other_id != example_id]
+    return _differences(image, frame, goal_set, others)
 
 
 @router.get("/api/cameras", response_model=CamerasOut, tags=["cameras"])
@@ -355,8 +386,9 @@ def check_goal_photo(
         Query(max_length=200, description="The robot camera to compare with; default: the set's task's."),
     ] = None,
 ) -> PhotoCheckOut:
-    """How a photo differs from the robot camera's current frame (shape, size, colours, contrast), before it is
-    uploaded. Stores nothing. No warnings and no camera when the set's task is not a robot env with a camera."""
+    """How a photo differs from the robot camera's current frame (shape, size, colours, contrast) and from the
+    viewpoint of the set's photos, before it is uploaded. Stores nothing. No camera (and only the viewpoint
+    warning) when the set's task is not a robot env with a camera."""
     goal_set = store.get_goal_set(goal_set_id=goal_set_id)
     filename = _clean_filename(file.filename, 0)
     data = file.file.read(settings.max_upload_bytes + 1)
@@ -368,14 +400,12 @@ def check_goal_photo(
     if env_id is not None and not is_camera_env(env_id, settings):
         raise _not_a_camera(env_id, ["query", "env_id"], settings)
     chosen = env_id or (goal_set.env_id if is_camera_env(goal_set.env_id, settings) else None)
+    set_photos = list(_set_photos(store, goal_set_id).values())
     if chosen is None:
-        return PhotoCheckOut(warnings=[], camera=None, photo=photo)
+        return PhotoCheckOut(warnings=_differences(image, None, goal_set, set_photos), camera=None, photo=photo)
     frame = _camera_frame(chosen, store)
     return PhotoCheckOut(
-        warnings=[
-            PhotoWarningOut(kind=found.kind, message=found.message)
-            for found in photo_differences(image, frame.pixels, goal_set.image_size)
-        ],
+        warnings=_differences(image, frame, goal_set, set_photos),
         camera=CameraFrameInfo(
             env_id=chosen, source=frame.source, width=frame.width, height=frame.height, frame_url=frame_url(chosen)
         ),

@@ -28,7 +28,7 @@ from app.routers.exports import evaluated_policies
 from app.routers.runs import list_run_outs, run_detail, run_out
 from app.schemas import GoalExampleOut, GoalSetOut, row_with
 from contract.algorithms import ALGORITHM_SPECS
-from contract.config import TrainConfig, config_reference
+from contract.config import FEWEST_GOAL_IMAGES, REAL_ROBOT_GOAL_IMAGES, TrainConfig, config_reference
 from contract.store import INT32_MAX, NotFound, QueryStatus, RunStatus
 
 TEMPLATES_DIR = Path(__file__).resolve().parent.parent.parent / "templates"
@@ -38,9 +38,9 @@ router = APIRouter(include_in_schema=False)
 
 FALLBACK_TASKS: dict[str, str] = {"pusher": "VisualPusher-v0", "door": "VisualDoor-v0", "picker": "VisualPicker-v0"}
 OptionalId = Annotated[int | None, Query(ge=1, le=INT32_MAX)]
-# How many goal photos to give: the goal-set page warns below FEWEST and recommends RECOMMENDED or more (the
+# How many goal photos to give: the goal-set page warns below FEWEST (the README asks for as many), more help (the
 # paper's real-robot tasks used PAPER).
-GOAL_PHOTOS = {"fewest": 5, "recommended": 10, "paper": 80}
+GOAL_PHOTOS = {"fewest": FEWEST_GOAL_IMAGES, "paper": REAL_ROBOT_GOAL_IMAGES}
 
 
 @dataclass(frozen=True)
