@@ -293,13 +293,23 @@ def model_image(observation: Any, image_size: int, env_id: str = "the env") -> n
     return resize(as_rgb(observation, env_id), image_size)
 
 
-def display_image(env: gym.Env, size: int, fallback: np.ndarray) -> np.ndarray:
-    """env.render() of the current state, longer side `size`; the upscaled observation if it cannot render."""
+def display_image(env: gym.Env, size: int, fallback: np.ndarray | None) -> np.ndarray:
+    """env.render() of the current state, longer side `size`; the upscaled observation if it cannot render. Before
+    the env's first reset (gymnasium's order check refuses render then) the env itself renders what it sees: a
+    person looks at the scene while resetting it, before the first episode too. ValueError when nothing renders
+    and there is no observation to fall back on."""
     try:
         frame = env.render()
+    except gym.error.ResetNeeded:  # a look before the first reset: the env's own render, past the order check
+        try:
+            frame = env.unwrapped.render()
+        except Exception:
+            frame = None
     except Exception:  # an env without rgb_array rendering
         frame = None
     if frame is None:
+        if fallback is None:
+            raise ValueError("the env renders nothing and has shown no observation yet")
         return resize(fallback, size)
     frame = as_rgb(frame)
     height, width = frame.shape[:2]

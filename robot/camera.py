@@ -1,11 +1,13 @@
 """A camera over OpenCV's `cv2.VideoCapture`: a device index (0 for the first camera), a device path
-(/dev/video2), a stream URL (rtsp://…) or a video file (for tests and replays; `loop` starts it again at its end).
+(/dev/video2), a stream URL (rtsp://…) or a video file (for tests and replays). A video file plays in a loop, starting
+again after its last frame, unless `loop=False`; a camera or a stream never loops.
 
     with OpenCVCamera(0, width=640, height=480) as camera:
         frame = camera.read()  # (480, 640, 3) uint8 RGB
 """
 
 import threading
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -17,8 +19,10 @@ class CameraError(RuntimeError):
 
 class OpenCVCamera:
     def __init__(self, source: int | str, *, width: int | None = None, height: int | None = None,
-                 loop: bool = False) -> None:  # fmt: skip
-        self.source, self.loop = source, loop
+                 loop: bool | None = None) -> None:  # fmt: skip
+        """`loop`: start again at the end; None (the default): for a video file, not for a camera or a stream."""
+        self.source = source
+        self.loop = loop if loop is not None else isinstance(source, str) and Path(source).is_file()
         self._lock = threading.Lock()  # the actor reads frames while the page's live view may read one too
         self.capture = cv2.VideoCapture(source)
         if not self.capture.isOpened():

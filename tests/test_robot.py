@@ -29,15 +29,15 @@ def write_video(path: Path, frames: int = 8, size: tuple[int, int] = (64, 48)) -
     writer.release()
 
 
-def test_the_camera_reads_a_video_file_as_rgb_frames_and_loops(tmp_path: Path) -> None:
+def test_the_camera_reads_a_video_file_as_rgb_frames_and_loops_by_default(tmp_path: Path) -> None:
     video = tmp_path / "camera.avi"
     write_video(video, frames=4)
-    with OpenCVCamera(str(video), loop=True) as camera:
+    with OpenCVCamera(str(video)) as camera:
         frames = [camera.read() for _ in range(6)]
     assert all(frame.shape == (48, 64, 3) and frame.dtype == np.uint8 for frame in frames)
     for index, frame in enumerate(frames):  # RGB, not OpenCV's BGR; after the 4th frame it starts again
         assert np.abs(frame.mean(axis=(0, 1)) - COLOURS[index % 4]).max() < 20
-    with OpenCVCamera(str(video)) as once:
+    with OpenCVCamera(str(video), loop=False) as once:
         for _ in range(4):
             once.read()
         with pytest.raises(CameraError, match="gave no frame"):
