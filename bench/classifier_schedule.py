@@ -52,7 +52,7 @@ def train(
     is asked about (answered from the replay's success flag), and the "no" answers make that share of each step's
     negatives, as the learner does."""
     torch.manual_seed(seed)
-    model = RewardModel(config, np.random.default_rng(seed))
+    model = RewardModel.for_run(config, np.random.default_rng(seed))
     model.goals = positives
     rng = np.random.default_rng(seed + 1)
     asked = 0

@@ -79,8 +79,8 @@ def learner_parts(
     """Seeded generator, agent, f_psi with 10 random goal images, and a filled replay buffer."""
     rng = np.random.default_rng(0)
     torch.manual_seed(0)
-    agent = SACAgent(config, action_dim=2)
-    reward_model = RewardModel(config, rng)
+    agent = SACAgent.for_run(config, action_dim=2)
+    reward_model = RewardModel.for_run(config, rng)
     reward_model.goals = rng.integers(0, 256, size=(10, config.image_size, config.image_size, 3), dtype=np.uint8)
     return rng, agent, reward_model, filled_replay(config, transitions, rng)
 

@@ -2,8 +2,9 @@
 
     MUJOCO_GL=egl python bench/loop_speed.py [--steps 3000] [--task pusher] [--threads N] [--set FIELD=VALUE ...]
 
-Runs the real loop (`learner.train.Trainer`: env, replay, f_psi scoring of every observation, queries posted to a
-real SQLite store and answered from another thread, the classifier's epochs, evaluations, metrics, heartbeats)
+Runs the real loop (`learner.train.train` with the lockstep runner: env, replay, f_psi scoring of every observation,
+queries posted to a real SQLite store and answered from another thread, the classifier's epochs, evaluations,
+metrics, heartbeats)
 for `--steps` env steps after the 1,000-step random warm-up, on the default configuration (or with `--set`'s
 fields changed, as in bench/learn.py). It times the SAC updates inside that same run (sampling, rewards f_psi(s')
 and the update itself), so both figures share the machine's state:
@@ -53,7 +54,8 @@ from bench.learn import parse_overrides  # noqa: E402
 from contract.config import TrainConfig  # noqa: E402
 from contract.store import Store  # noqa: E402
 from learner.networks import resolve_precision  # noqa: E402
-from learner.train import Trainer  # noqa: E402
+from learner.train import open_runner, train  # noqa: E402
+from learner.trainer import Trainer  # noqa: E402
 from sim import TASKS  # noqa: E402
 
 WARM_UP = 1000
@@ -142,25 +144,28 @@ def main() -> int:
             goal_set_id=goal_set_id, total_steps=config.total_steps,
         )  # fmt: skip
         store.claim_next_run(worker="bench")
-        trainer = Trainer(
+        runner = open_runner(
             config, store=store, run_id=run.id, worker="bench", goal_set_id=goal_set_id,
             checkpoint_file=Path(tmp) / "checkpoint.pt",
         )  # fmt: skip
+        trainer = runner.trainer
         timer = PartTimer()
-        timer.wrap(trainer, "_step_batch", "acting, env steps and SAC updates")
-        timer.wrap(trainer, "_end_of_epoch_and_evaluation", "epoch ends and evaluations")
+        timer.wrap(runner, "steps", "acting, env steps and SAC updates")
+        timer.wrap(trainer, "_end_of_epoch", "epoch ends and evaluations")
+        timer.wrap(trainer, "_evaluate", "epoch ends and evaluations")
         timer.wrap(trainer, "_observe", "query candidates")
         timer.wrap(trainer.queries, "ask", "queries asked")
         timer.wrap(trainer, "_log", "metrics")
-        timer.wrap(trainer, "_actions", "acting", inner=True)
-        timer.wrap(trainer, "_simulate", "env steps", inner=True)
+        timer.wrap(runner, "_actions", "acting", inner=True)
+        for episode in runner.episodes:
+            timer.wrap(episode.env, "step", "env steps", inner=True)
         timer.wrap(trainer.queries, "score_pending", "query scoring", inner=True)
-        timer.wrap(trainer, "_sac_updates", "SAC updates", inner=True)
+        timer.wrap(trainer, "sac_updates", "SAC updates", inner=True)
         timer.wrap(trainer, "_classifier_steps", "classifier steps", inner=True)
         timer.wrap(trainer.evaluator, "run_episodes", "evaluation episodes", inner=True)
         started: list[float] = []
         ended: list[float] = []
-        original_after_step = trainer._after_step
+        original_after_step = trainer.after_step
 
         def after_step() -> None:
             original_after_step()
@@ -171,13 +176,13 @@ def main() -> int:
                 timer.on = False
                 ended.append(time.perf_counter())
 
-        trainer._after_step = after_step  # type: ignore[method-assign]
+        trainer.after_step = after_step  # type: ignore[method-assign]
         done = threading.Event()
         labeller = threading.Thread(target=answer_everything, args=(store, run.id, done), daemon=True)
         labeller.start()
         update_rate = 0.0
         try:
-            trainer.train()
+            train(runner)
             elapsed = ended[0] - started[0]
             print(f"updates: {trainer.updates.describe()}")
             if trainer.agent.device.type == "cuda":
@@ -185,14 +190,14 @@ def main() -> int:
         finally:
             done.set()
             labeller.join()
-            trainer.close()
+            runner.close()
             store.dispose()
     steps = args.steps
     update_seconds = timer.inner_seconds["SAC updates"]
     e = steps / elapsed
     u = update_rate if args.device.startswith("cuda") else steps * config.updates_per_step / update_seconds
     print("ms per env step: " + ", ".join(f"{part} {1000 * s / steps:.1f}" for part, s in timer.seconds.items()))
-    if trainer.update_thread is None:
+    if runner.update_thread is None:
         where = "the updates after the envs step, f_psi's epochs at once"
     else:
         where = "the updates on the update thread while the loop's thread acts, steps the envs and scores; "

@@ -58,7 +58,7 @@ def main() -> int:
     negatives = np.stack([held_at(near_miss()) for _ in range(args.examples)])
     env.close()
     train = 2 * args.examples // 3
-    model = RewardModel(TrainConfig(algorithm="raq", precision="fp32"), rng)
+    model = RewardModel.for_run(TrainConfig(algorithm="raq", precision="fp32"), rng)
     for step in range(1, args.steps + 1):
         picks = rng.integers(0, train, size=(2, 128))
         model.update_classifier(positives[picks[0]], negatives[picks[1]], accuracy=False)

@@ -81,7 +81,7 @@ def load_run(checkpoint: Path) -> tuple[dict[str, Any], TrainConfig, SACAgent]:
     if state is None or state.get("reward_model") is None:
         raise SystemExit(f"{checkpoint}: no checkpoint with a reward classifier")
     config = TrainConfig.from_dict({**json.loads(state["config"]), "device": "cpu"})
-    agent = SACAgent(config, action_dim=int(state["agent"]["actor"]["trunk.4.bias"].shape[0]) // 2)
+    agent = SACAgent.for_run(config, action_dim=int(state["agent"]["actor"]["trunk.4.bias"].shape[0]) // 2)
     agent.load_state_dict(state["agent"])
     return state, config, agent
 
@@ -146,7 +146,7 @@ def main() -> int:
     parser.add_argument("--bins", type=int, default=6)
     args = parser.parse_args()
     state, config, agent = load_run(args.checkpoint)
-    model = RewardModel(config, np.random.default_rng(0))
+    model = RewardModel.for_run(config, np.random.default_rng(0))
     model.load_state_dict(state["reward_model"])
     env = make_env(config.env_id, image_size=config.image_size, display_size=64)
     print(f"{config.env_id} at step {state['step']}: f_psi of {model.net.__class__.__name__}, {args.episodes} "

@@ -1,5 +1,7 @@
 """The one training configuration, stored as JSON with every run, defined in parts: the task, the method (SAC,
-networks, classifier, queries), evaluation, and how the run executes.
+networks, classifier, queries), evaluation, and how the run executes. Each field's bounds sit beside it
+(`bounded`); `TrainConfig.validation_errors` is one loop over them. Each part of the learner receives its own part
+(`TrainConfig.sac`, `.networks`, …), while the stored JSON stays one flat object.
 
 This module imports neither torch nor the store, so the web app can validate a run's config with it.
 """
@@ -8,33 +10,24 @@ import ast
 import math
 import os
 import re
-from dataclasses import asdict, dataclass, fields, replace
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields, replace
 from functools import cache
 from pathlib import Path
-from typing import Any, Literal, get_args, get_origin, get_type_hints
+from typing import Any, Literal, TypeVar, get_args, get_origin, get_type_hints
 
 from contract.algorithms import ALGORITHMS
 
 SEED_MAX = 2**31 - 1  # the runs.seed column (INTEGER: 32-bit on PostgreSQL); numpy and torch take any of these
-# Upper bounds of the integer fields (lower bounds in TrainConfig.validation_errors): what one learner can do
-# on a workstation-class host. A run of 10^9 env steps takes over a year at the ~25 steps/s measured here.
-INT_MAXIMA: dict[str, int] = {
-    "total_steps": 1_000_000_000, "episode_steps": 100_000, "batch_size": 4096, "initial_random_steps": 1_000_000,
-    "updates_per_step": 100, "replay_capacity": 10_000_000, "conv_filters": 256, "hidden_dim": 4096,
-    "feature_dim": 4096, "classifier_batch_size": 4096, "classifier_steps": 100_000, "epoch_steps": 1_000_000,
-    "naive_classifier_steps": 1_000_000, "raq_initial_negatives": 1_000_000, "query_every": 1_000_000_000,
-    "query_budget": 100_000, "eval_every": 1_000_000_000, "eval_episodes": 1000, "checkpoint_every": 1_000_000_000,
-    "display_size": 1024, "rollout_size": 512, "query_candidates": 1024, "query_score_batch": 4096,
-    "log_every": 1_000_000_000, "num_envs": 64, "n_step": 20,
-}  # fmt: skip
-FLOAT_MAXIMA: dict[str, float] = {
-    "actor_lr": 1.0, "critic_lr": 1.0, "alpha_lr": 1.0, "classifier_lr": 1.0, "initial_alpha": 1e6,
-    "mixup_alpha": 100.0, "classifier_label_smoothing": 1.0, "classifier_gradient_penalty": 1e6,
-    "heartbeat_seconds": 3600.0, "no_answer_share": 1.0, "control_hz": 1000.0,
-    "policy_sync_seconds": 3600.0, "watchdog_seconds": 60.0, "exploration_noise_beta": 2.0,
-}  # fmt: skip
-RETIRED_FIELDS = frozenset({"classifier_beside_updates"})
-"""Fields that runs stored by earlier versions may hold and that no longer change anything: dropped when read."""
+# The upper bounds of the counts are what one learner can do on a workstation-class host: a run of 10^9 env steps
+# takes over a year at the ~25 steps/s measured here.
+STEPS_MAX = 1_000_000_000
+RETIRED_FIELDS = frozenset({
+    "classifier_beside_updates", "env_processes", "n_step", "reward_centering", "classifier_label_smoothing",
+    "classifier_gradient_penalty",
+})  # fmt: skip
+"""Fields that runs stored by earlier versions may hold and that no longer change anything: dropped when read
+(docs/design.md keeps what each was measured to do)."""
 FIELDS_BEFORE_THEY_EXISTED: dict[str, Any] = {"critic_layer_norm": False, "exploration_noise_beta": 0.0}
 """Fields whose default now differs from what runs stored before the field existed did: a stored config without
 one reads as it ran."""
@@ -42,6 +35,61 @@ DEVICE_PATTERN = re.compile(r"cpu|cuda(:(1[0-5]|[0-9]))?")
 ENV_ID_PATTERN = re.compile(r"[A-Za-z0-9_.\-/]+(:[A-Za-z0-9_.\-/]+)?")
 # Memory a run may take on this host: its estimate (TrainConfig.memory_estimate) must stay under this share of RAM.
 MEMORY_SHARE = 0.8
+Part = TypeVar("Part")
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """What values a field takes: a range, or a check of its own; `message` replaces the range's own words."""
+
+    low: float | None = None
+    """The least value allowed."""
+    high: float | None = None
+    """The greatest value allowed."""
+    above: float | None = None
+    """Values must be greater than this (an open lower bound)."""
+    message: str | None = None
+    """What a value out of range is told, instead of the bound it broke."""
+    check: Callable[[Any], str | None] | None = None
+    """Any other rule: the message for a value that breaks it, else None."""
+
+    def error(self, value: Any) -> str | None:
+        """Why `value` cannot be used, or None (None values, where a field allows them, pass)."""
+        if value is None:
+            return None
+        if self.check is not None:
+            return self.check(value)
+        if self.above is not None and not value > self.above:
+            return self.message or ("must be positive" if self.above == 0 else f"must be greater than {self.above:g}")
+        if self.low is not None and value < self.low:
+            return self.message or ("must not be negative" if self.low == 0 else f"must be at least {self.low:,}")
+        if self.high is not None and value > self.high:
+            high = f"{self.high:,}" if isinstance(value, int) else f"{self.high:g}"
+            return self.message or f"must be at most {high}"
+        return None
+
+
+def bounded(default: Any, low: float | None = None, high: float | None = None, **rules: Any) -> Any:
+    """A field with its default and its bounds (Bounds' low, high, above, message, check)."""
+    return field(default=default, metadata={"bounds": Bounds(low, high, **rules)})
+
+
+def _device_error(value: str) -> str | None:
+    if not DEVICE_PATTERN.fullmatch(value):
+        return "must be 'cpu', 'cuda' or 'cuda:N' (N from 0 to 15)"
+    return None
+
+
+def _env_id_error(value: str) -> str | None:
+    if not value.strip():
+        return "must name a gymnasium env"
+    if len(value) > 200 or not ENV_ID_PATTERN.fullmatch(value):
+        return "must be a gymnasium id or 'module:EnvId' (letters, digits, _.-/; 200 at most)"
+    return None
+
+
+def _algorithm_error(value: str) -> str | None:
+    return None if value in ALGORITHMS else f"must be one of {', '.join(ALGORITHMS)}"
 
 
 def host_memory_bytes() -> int:
@@ -85,15 +133,15 @@ def _choice_fields() -> dict[str, tuple[Any, ...]]:
 class TaskConfig:
     """What task a run learns: the env, its seed and length."""
 
-    env_id: str = "VisualPusher-v0"
+    env_id: str = bounded("VisualPusher-v0", check=_env_id_error)
     """Gymnasium id, or "module:EnvId" with a module in RAQ_ENV_MODULES, of an env with RGB image observations."""
-    seed: int = 0
+    seed: int = bounded(0, 0, SEED_MAX, message=f"must be between 0 and {SEED_MAX}")
     """Seed for torch, numpy and the env (0 to 2**31 - 1)."""
-    image_size: int = 48
+    image_size: int = bounded(48, 16, 256, message="must be between 16 and 256")
     """Side of the square observation the networks see, in pixels."""
-    total_steps: int = 100_000
+    total_steps: int = bounded(100_000, 1, STEPS_MAX)
     """Environment steps to train for."""
-    episode_steps: int = 100
+    episode_steps: int = bounded(100, 1, 100_000)
     """Episode length (the registered time limit); no terminal on success."""
 
 
@@ -101,32 +149,30 @@ class TaskConfig:
 class SACConfig:
     """Soft actor-critic (Haarnoja et al. 2018; the paper's "untuned" defaults)."""
 
-    batch_size: int = 256
+    batch_size: int = bounded(256, 1, 4096)
     """SAC minibatch size."""
-    actor_lr: float = 3e-4
+    actor_lr: float = bounded(3e-4, high=1.0, above=0)
     """Adam learning rate of the policy."""
-    critic_lr: float = 3e-4
+    critic_lr: float = bounded(3e-4, high=1.0, above=0)
     """Adam learning rate of the twin Q-functions (and of the shared encoder)."""
-    alpha_lr: float = 3e-4
+    alpha_lr: float = bounded(3e-4, high=1.0, above=0)
     """Adam learning rate of the entropy temperature."""
-    discount: float = 0.99
+    discount: float = bounded(0.99, high=1, above=0, message="must be in (0, 1]")
     """Discount factor gamma."""
-    tau: float = 5e-3
+    tau: float = bounded(5e-3, high=1, above=0, message="must be in (0, 1]")
     """Polyak factor of the target Q-networks, updated every step."""
-    initial_alpha: float = 1.0
+    initial_alpha: float = bounded(1.0, high=1e6, above=0)
     """Starting entropy temperature."""
-    target_entropy: float | None = None
+    target_entropy: float | None = bounded(None, -1e6, 1e6, message="must be between -1e6 and 1e6")
     """Target policy entropy; None means -dim(A)."""
-    initial_random_steps: int = 1000
+    initial_random_steps: int = bounded(1000, 0, 1_000_000)
     """Uniform random actions before the policy acts (and before updates start)."""
-    exploration_noise_beta: float = 1.0
+    exploration_noise_beta: float = bounded(1.0, 0, 2.0)
     """Colour of the acting policy's noise over an episode, power spectrum ~ 1/f^beta (Eberhard et al. 2023; the
     warm-up's actions too): 1 pink; 0 white, SAC's i.i.d. draws; 2 red."""
-    updates_per_step: int = 2
+    updates_per_step: int = bounded(2, 1, 100)
     """Gradient steps per environment step (with a real-time actor: at most this many; fewer when slower); 1: SAC's."""
-    n_step: int = 1
-    """Steps of the return in the critic's target (DrQ-v2: 3), on the host pipeline; 1: SAC's one-step target."""
-    replay_capacity: int = 200_000
+    replay_capacity: int = bounded(200_000, 1, 10_000_000)
     """Replay buffer size in transitions (large enough that nothing is evicted in a normal run)."""
 
 
@@ -134,15 +180,15 @@ class SACConfig:
 class NetworkConfig:
     """The conv encoder and the fully connected layers of every network."""
 
-    conv_filters: int = 8
+    conv_filters: int = bounded(8, 1, 256)
     """Filters of each of the two 5x5 conv layers (8 in simulation, 32 on the real robot)."""
-    hidden_dim: int = 256
+    hidden_dim: int = bounded(256, 1, 4096)
     """Width of the two fully connected layers."""
     encoder: Literal["paper", "strided"] = "strided"
     """Conv net of every network: the paper's (5x5 convs + 2x2 max-pools) or 4x4 stride-2 convs (4x cheaper)."""
     shared_encoder: bool = True
     """One conv encoder for actor and critics, trained by the critic (DrQ / SAC-AE); False: one each."""
-    feature_dim: int = 50
+    feature_dim: int = bounded(50, 0, 4096)
     """Shared encoder only: Linear + LayerNorm + tanh of the conv features to this size (SAC-AE, DrQ); 0: none."""
     critic_layer_norm: bool = True
     """LayerNorm (no affine) after each hidden layer of the Q MLPs, before the ReLU (RLPD's critics); False: SAC's."""
@@ -154,29 +200,22 @@ class NetworkConfig:
 class ClassifierConfig:
     """The reward classifier f_psi (Sec. IV, Alg. 2)."""
 
-    classifier_lr: float = 3e-4
+    classifier_lr: float = bounded(3e-4, high=1.0, above=0)
     """Adam learning rate of the reward classifier (the paper's code: 1e-4; its appendix: 3e-4)."""
-    classifier_batch_size: int = 128
+    classifier_batch_size: int = bounded(128, 1, 4096)
     """Positives and negatives per classifier step (each)."""
-    classifier_steps: int = 100
+    classifier_steps: int = bounded(100, 0, 100_000)
     """Classifier gradient steps per epoch (the paper's code: 10, with 1e-4 still at chance after 7K steps)."""
-    epoch_steps: int = 1000
+    epoch_steps: int = bounded(1000, 1, 1_000_000)
     """Environment steps per epoch: classifier training, answer reading and evaluation happen once each."""
-    mixup_alpha: float = 1.0
+    mixup_alpha: float = bounded(1.0, 0, 100.0)
     """Mixup lambda ~ Beta(alpha, alpha); 0 disables mixup."""
-    classifier_label_smoothing: float = 0.0
-    """Labels y -> y (1 - eps) + eps / 2 in f_psi's loss (SERL's VICE): bounds its logits, so the reward's scale."""
-    classifier_gradient_penalty: float = 0.0
-    """lambda of the zero-centred penalty lambda / 2 E|grad_x logit D(x~)|^2 on the mixed images; 0: none."""
-    reward_centering: bool = False
-    """r = f_psi(s') less f_psi's mean on 256 replay observations, taken after each epoch: the level that moves with
-    log pi in the AIRL form (f_psi ~ log pi + log-odds) stays out of the Q targets."""
-    no_answer_share: float = 0.25
+    no_answer_share: float = bounded(0.25, 0, 1.0)
     """VICE-RAQ: share of classifier negatives drawn from "no" answers (once there are any); 0: the paper's (replay
     only)."""
-    naive_classifier_steps: int = 10_000
+    naive_classifier_steps: int = bounded(10_000, high=1_000_000)
     """naive_classifier: gradient steps of its one-off training after the first epoch."""
-    raq_initial_negatives: int = 2000
+    raq_initial_negatives: int = bounded(2000, high=1_000_000)
     """raq / naive_classifier: observations from the first epoch kept as negatives."""
 
 
@@ -184,34 +223,46 @@ class ClassifierConfig:
 class QueryConfig:
     """Active queries: which observation is asked about, how often, how many (Sec. IV-A)."""
 
-    query_every: int = 5000
+    query_every: int = bounded(5000, 1, STEPS_MAX)
     """Environment steps between active queries (the paper: pusher 25K, door 10K, picker 1K)."""
-    query_budget: int = 20
+    query_budget: int = bounded(20, 0, 100_000)
     """Queries a run may ask in all; asking stops when it is spent."""
     query_strategy: Literal["argmax", "entropy"] = "argmax"
     """argmax: highest f_psi since the last query (the paper); entropy: the least certain one."""
-    query_candidates: int = 32
+    query_candidates: int = bounded(32, 1, 1024)
     """Best-scoring observations since the last query kept with their display render; the query is the best of them."""
-    query_score_batch: int = 64
+    query_score_batch: int = bounded(64, 1, 4096)
     """Observations f_psi scores together as query candidates, for envs that can snapshot their state (the
     simulated tasks; the display render of a kept one is taken from its snapshot); 1, or other envs: each at once."""
+
+    def asks_after(self, step: int, *, asked: int) -> bool:
+        """A query is asked after env step `step`, `asked` having been asked: every query_every steps while the
+        budget lasts (Alg. 2 line 5)."""
+        return step % self.query_every == 0 and asked < self.query_budget
+
+    def next_query_step(self, step: int, *, asked: int) -> int | None:
+        """The env step after which the next query is asked, the run being at `step`; None once the budget is
+        spent."""
+        if asked >= self.query_budget:
+            return None
+        return (step // self.query_every + 1) * self.query_every
 
 
 @dataclass
 class EvaluationConfig:
     """Evaluation, checkpoints and what is recorded for a person to look at."""
 
-    eval_every: int = 1000
+    eval_every: int = bounded(1000, 1, STEPS_MAX)
     """Environment steps between evaluations."""
-    eval_episodes: int = 5
+    eval_episodes: int = bounded(5, 0, 1000)
     """Deterministic episodes per evaluation."""
-    checkpoint_every: int = 10_000
+    checkpoint_every: int = bounded(10_000, 1, STEPS_MAX)
     """Environment steps between checkpoints (one is also written at a clean exit)."""
-    display_size: int = 256
+    display_size: int = bounded(256, 16, 1024)
     """Side of the larger render stored with each query and rollout for a person to look at."""
-    rollout_size: int = 128
+    rollout_size: int = bounded(128, 16, 512)
     """Side of the frames of the evaluation rollout GIF."""
-    log_every: int = 250
+    log_every: int = bounded(250, 1, STEPS_MAX)
     """Environment steps between training-metric records (answers are also read this often)."""
 
 
@@ -219,29 +270,26 @@ class EvaluationConfig:
 class ExecutionConfig:
     """How the run executes on its host: device, precision, threads, pipelines, envs. None of it changes the method."""
 
-    device: str = "cpu"
+    device: str = bounded("cpu", check=_device_error)
     """Torch device: "cpu", "cuda" or "cuda:N"; only a learner with that GPU takes the run."""
     precision: Literal["auto", "fp32", "bf16"] = "auto"
     """Autocast dtype of every network (SAC and f_psi); bf16 also hands them bf16 images; auto: bf16 where faster."""
-    num_envs: int = 1
+    num_envs: int = bounded(1, 1, 64)
     """Training envs in lockstep: the policy acts for all in one batch; each env step is one loop step."""
-    env_processes: bool = False
-    """Each training env in a worker process of its own, the batch's envs stepped at once on as many cores (for
-    num_envs > 1 where cores are spare, as on a GPU host); False: one after another on the loop's thread."""
     compile_updates: bool = False
     """Device pipeline only: torch.compile the update and the classifier step before graph capture."""
     replay_pipeline: Literal["auto", "host", "device"] = "auto"
     """Batches sampled and rewarded on the host (numpy, cached f_psi) or device (CUDA graphs); auto: GPU."""
     update_thread: Literal["auto", "on", "off"] = "auto"
     """SAC updates on a second thread while the envs step (MuJoCo leaves the GIL); auto: on unless on a GPU."""
-    heartbeat_seconds: float = 5.0
+    heartbeat_seconds: float = bounded(5.0, high=3600.0, above=0)
     """Seconds between heartbeats to the store (a stop request is noticed this quickly)."""
-    control_hz: float = 0.0
+    control_hz: float = bounded(0.0, 0, 1000.0)
     """Real time: the env steps at this rate in an actor process of its own, never waiting for the learner; 0: a
     robot env's own rate (robot.base.RobotEnv.control_hz), any other env in lockstep with the updates."""
-    policy_sync_seconds: float = 1.0
+    policy_sync_seconds: float = bounded(1.0, high=3600.0, above=0)
     """Real time: seconds between the policy weights the learner sends its actor."""
-    watchdog_seconds: float = 2.0
+    watchdog_seconds: float = bounded(2.0, high=60.0, above=0)
     """Real time: the actor holds the arm safe when the learner or the database has been silent this long."""
     reset_every_episode: bool = False
     """Real time: a person resets the scene before every episode (a robot env that needs it always asks)."""
@@ -254,7 +302,7 @@ class ExecutionConfig:
 class MethodConfig(SACConfig, NetworkConfig, ClassifierConfig, QueryConfig):
     """What the method is: the reward method of ALGORITHM_SPECS and its SAC, networks, classifier and queries."""
 
-    algorithm: str = "vice_raq"
+    algorithm: str = bounded("vice_raq", check=_algorithm_error)
     """Reward method, one of contract.algorithms.ALGORITHM_SPECS: vice_raq, vice, raq, naive_classifier, sparse."""
 
 
@@ -270,72 +318,54 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
             raise ValueError(f"{field}: {message}")
 
     def validation_errors(self) -> list[tuple[str, str]]:
-        """(field, message) for each value that cannot work."""
+        """(field, message) for each value that cannot work: one pass over the fields' bounds and choices."""
         errors: list[tuple[str, str]] = []
-        positive_ints = (
-            "image_size", "total_steps", "episode_steps", "batch_size", "updates_per_step", "num_envs",
-            "replay_capacity", "conv_filters", "hidden_dim", "classifier_batch_size", "epoch_steps", "query_every",
-            "eval_every", "checkpoint_every", "display_size", "rollout_size", "query_candidates", "query_score_batch",
-            "log_every", "n_step",
-        )  # fmt: skip
-        for field in fields(self):
-            value = getattr(self, field.name)
+        choices = _choice_fields()
+        for spec in fields(self):
+            value = getattr(self, spec.name)
             if isinstance(value, float) and not math.isfinite(value):
-                errors.append((field.name, "must be a finite number"))
-        if errors:
-            return errors
-        for name in positive_ints:
-            if getattr(self, name) < 1:
-                errors.append((name, "must be at least 1"))
-        for name in ("eval_episodes", "classifier_steps", "query_budget", "initial_random_steps", "feature_dim"):
-            if getattr(self, name) < 0:
-                errors.append((name, "must not be negative"))
-        for name, maximum in INT_MAXIMA.items():
-            if getattr(self, name) > maximum:
-                errors.append((name, f"must be at most {maximum:,}"))
-        for name in ("actor_lr", "critic_lr", "alpha_lr", "classifier_lr", "initial_alpha"):
-            if not getattr(self, name) > 0:
-                errors.append((name, "must be positive"))
-        for name, ceiling in FLOAT_MAXIMA.items():
-            if getattr(self, name) > ceiling:
-                errors.append((name, f"must be at most {ceiling:g}"))
-        for name in ("heartbeat_seconds", "policy_sync_seconds", "watchdog_seconds"):
-            if not getattr(self, name) > 0:
-                errors.append((name, "must be positive"))
-        if self.control_hz < 0:
-            errors.append(("control_hz", "must not be negative"))
-        if not 0 <= self.seed <= SEED_MAX:
-            errors.append(("seed", f"must be between 0 and {SEED_MAX}"))
-        if self.target_entropy is not None and abs(self.target_entropy) > 1e6:
-            errors.append(("target_entropy", "must be between -1e6 and 1e6"))
-        if not DEVICE_PATTERN.fullmatch(self.device):
-            errors.append(("device", "must be 'cpu', 'cuda' or 'cuda:N' (N from 0 to 15)"))
-        if self.display_size < 16:
-            errors.append(("display_size", "must be at least 16"))
-        if self.rollout_size < 16:
-            errors.append(("rollout_size", "must be at least 16"))
-        if not 0 < self.discount <= 1:
-            errors.append(("discount", "must be in (0, 1]"))
-        if not 0 < self.tau <= 1:
-            errors.append(("tau", "must be in (0, 1]"))
-        for name in (
-            "mixup_alpha", "no_answer_share", "classifier_label_smoothing", "classifier_gradient_penalty",
-            "exploration_noise_beta",
-        ):  # fmt: skip
-            if getattr(self, name) < 0:
-                errors.append((name, "must not be negative"))
-        if self.algorithm not in ALGORITHMS:
-            errors.append(("algorithm", f"must be one of {', '.join(ALGORITHMS)}"))
-        for name, choices in _choice_fields().items():
-            if getattr(self, name) not in choices:
-                errors.append((name, f"must be one of {', '.join(map(str, choices))}"))
-        if not 16 <= self.image_size <= 256:
-            errors.append(("image_size", "must be between 16 and 256"))
-        if not self.env_id.strip():
-            errors.append(("env_id", "must name a gymnasium env"))
-        elif len(self.env_id) > 200 or not ENV_ID_PATTERN.fullmatch(self.env_id):
-            errors.append(("env_id", "must be a gymnasium id or 'module:EnvId' (letters, digits, _.-/; 200 at most)"))
+                message: str | None = "must be a finite number"
+            elif spec.name in choices:
+                allowed = choices[spec.name]
+                message = None if value in allowed else f"must be one of {', '.join(map(str, allowed))}"
+            else:
+                bounds = spec.metadata.get("bounds")
+                message = None if bounds is None else bounds.error(value)
+            if message is not None:
+                errors.append((spec.name, message))
         return errors
+
+    def part(self, part: type[Part]) -> Part:
+        """The values of one part of the configuration (SACConfig, NetworkConfig, …) as that part."""
+        return part(**{spec.name: getattr(self, spec.name) for spec in fields(part)})  # type: ignore[call-overload]
+
+    @property
+    def task(self) -> "TaskConfig":
+        return self.part(TaskConfig)
+
+    @property
+    def sac(self) -> "SACConfig":
+        return self.part(SACConfig)
+
+    @property
+    def networks(self) -> "NetworkConfig":
+        return self.part(NetworkConfig)
+
+    @property
+    def classifier(self) -> "ClassifierConfig":
+        return self.part(ClassifierConfig)
+
+    @property
+    def queries(self) -> "QueryConfig":
+        return self.part(QueryConfig)
+
+    @property
+    def evaluation(self) -> "EvaluationConfig":
+        return self.part(EvaluationConfig)
+
+    @property
+    def execution(self) -> "ExecutionConfig":
+        return self.part(ExecutionConfig)
 
     def memory_estimate(self) -> int:
         """Bytes of host memory the run's images take at most: the replay's frame ring (two frames per
@@ -430,12 +460,12 @@ def field_docs() -> dict[str, str]:
     for node in tree.body:
         if not isinstance(node, ast.ClassDef):
             continue
-        for field, following in zip(node.body, node.body[1:], strict=False):
+        for statement, following in zip(node.body, node.body[1:], strict=False):
             if (
-                isinstance(field, ast.AnnAssign) and isinstance(field.target, ast.Name)
+                isinstance(statement, ast.AnnAssign) and isinstance(statement.target, ast.Name)
                 and isinstance(following, ast.Expr) and isinstance(following.value, ast.Constant)
             ):  # fmt: skip
-                docs[field.target.id] = " ".join(str(following.value.value).split())
+                docs[statement.target.id] = " ".join(str(following.value.value).split())
     return docs
 
 
@@ -444,9 +474,9 @@ def config_reference() -> dict[str, list[tuple[str, Any, str]]]:
     order the form, the API (GET /api/config) and docs/configuration.md show them."""
     docs, defaults = field_docs(), TrainConfig()
     parts: dict[str, list[tuple[str, Any, str]]] = {}
-    for field in fields(TrainConfig):
-        parts.setdefault(config_part(field.name), []).append(
-            (field.name, getattr(defaults, field.name), docs[field.name])
+    for spec in fields(TrainConfig):
+        parts.setdefault(config_part(spec.name), []).append(
+            (spec.name, getattr(defaults, spec.name), docs[spec.name])
         )
     order = ["task", "method", *[part for part in CONFIG_PARTS if part != "task"]]
     return {part: parts[part] for part in order if part in parts}

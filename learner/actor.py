@@ -35,6 +35,19 @@ import torch
 from contract.config import TrainConfig
 from contract.envs import display_image, encode_png, make_env, model_image, scale_action
 from contract.store import Store
+from learner.actor_messages import (
+    ActorError,
+    ActorMessage,
+    Close,
+    EpisodeStart,
+    Failure,
+    KeepAlive,
+    PolicyWeights,
+    Ready,
+    Start,
+    StateChange,
+    Transition,
+)
 from learner.exploration import EpisodeNoise, warm_up_action
 from learner.sac import SACAgent
 
@@ -99,7 +112,7 @@ class Controls:
 
 
 # ====================================================================== the actor process
-class _Actor:
+class ActorLoop:
     """The actor's state in its process."""
 
     def __init__(
@@ -117,7 +130,7 @@ class _Actor:
         self.owns_env = env is None
         self.env: gymnasium.Env = env or make_env(cfg.env_id, image_size=cfg.image_size, display_size=cfg.display_size)
         self.action_space = self.env.action_space
-        self.agent = SACAgent(cfg, int(self.action_space.shape[0]))
+        self.agent = SACAgent.for_run(cfg, int(self.action_space.shape[0]))
         self.generator = torch.Generator().manual_seed(cfg.seed)
         self.noise = (  # coloured exploration noise per episode, from the generator; None: i.i.d. (SAC's)
             EpisodeNoise(cfg.exploration_noise_beta, cfg.episode_steps, int(self.action_space.shape[0]), self.generator)
@@ -173,12 +186,11 @@ class _Actor:
             except (EOFError, OSError):
                 self.exit_reason = ActorState.LEARNER_GONE
                 return
-            kind = message[0]
-            if kind == "policy":
-                self._load_policy(message[1])
-            elif kind == "start":
-                self.step, self.started = int(message[1]), True
-            elif kind == "close":
+            if isinstance(message, PolicyWeights):
+                self._load_policy(message.modules)
+            elif isinstance(message, Start):
+                self.step, self.started = int(message.step), True
+            elif isinstance(message, Close):
                 self.exit_reason = ActorState.CLOSED
             self.last_keepalive = time.monotonic()
 
@@ -204,7 +216,7 @@ class _Actor:
     # ------------------------------------------------------------------ the loop
     def run(self) -> None:
         self.control_thread.start()
-        self.outbox.put(("ready", self.action_space, self.env.observation_space))
+        self.outbox.put(Ready(self.action_space, self.env.observation_space))
         try:
             self._loop()
         finally:
@@ -245,8 +257,10 @@ class _Actor:
             obs = model_image(raw, cfg.image_size, cfg.env_id)
             display = display_image(self.env, cfg.display_size, obs)
             self.frame = self._camera_view(display)
-            self.outbox.put(("step", action, obs, float(reward), bool(terminated), bool(truncated), info, display,
-                             period, self.controls.evaluation_round))  # fmt: skip
+            self.outbox.put(Transition(
+                action, obs, float(reward), bool(terminated), bool(truncated), info, display, period,
+                self.controls.evaluation_round,
+            ))  # fmt: skip
             if terminated or truncated or length >= cfg.episode_steps:
                 obs = self._begin_episode()
                 if obs is None:
@@ -276,7 +290,7 @@ class _Actor:
     def _set_state(self, state: str) -> None:
         if state != self.state:
             self.state = state
-            self.outbox.put(("state", state))
+            self.outbox.put(StateChange(state))
 
     def _hold_if_needed(self) -> str | None:
         """Hold the arm while the watchdog or a person says so: "exit" (the learner is gone or closed the
@@ -353,7 +367,7 @@ class _Actor:
         display = display_image(self.env, cfg.display_size, obs)
         self.frame = self._camera_view(display)
         self._set_state(ActorState.ACTING)
-        self.outbox.put(("reset", obs, info, display))
+        self.outbox.put(EpisodeStart(obs, info, display))
         return obs
 
     def _refresh_frame(self) -> None:
@@ -373,51 +387,12 @@ class _Actor:
 def serve(settings: ActorSettings, connection: Connection, outbox: Any) -> None:
     """The actor process: run until the learner closes it or goes away; an error goes to the learner."""
     try:
-        _Actor(settings, connection, outbox).run()
+        ActorLoop(settings, connection, outbox).run()
     except Exception:
-        outbox.put(("error", traceback.format_exc()))
+        outbox.put(Failure(traceback.format_exc()))
 
 
 # ====================================================================== the learner's side
-class ActorError(RuntimeError):
-    """The actor process failed (its traceback is the message) or went away."""
-
-
-@dataclass
-class ActorStep:
-    """One message of the actor: a step ("step"), an episode's first observation ("reset"), or a state."""
-
-    kind: str
-    action: np.ndarray | None = None
-    observation: np.ndarray | None = None
-    reward: float = 0.0
-    terminated: bool = False
-    truncated: bool = False
-    info: dict[str, Any] = field(default_factory=dict)
-    display: np.ndarray | None = None
-    period: float | None = None
-    state: str | None = None
-    evaluation_round: int | None = None
-    """A step of an evaluation episode: its Evaluate now round (None: a training step)."""
-
-
-def actor_step(message: tuple) -> ActorStep:
-    """The ActorStep of one of the actor's messages (the tuples `_Actor` puts in its outbox); ActorError for its
-    "error"."""
-    kind = message[0]
-    if kind == "error":
-        raise ActorError(f"the actor failed:\n{message[1]}")
-    if kind == "step":
-        _, action, obs, reward, terminated, truncated, info, display, period, evaluation_round = message
-        return ActorStep(
-            kind, action, obs, reward, terminated, truncated, info, display, period, evaluation_round=evaluation_round
-        )
-    if kind == "reset":
-        _, obs, info, display = message
-        return ActorStep(kind, observation=obs, info=info, display=display)
-    return ActorStep(kind, state=message[1])
-
-
 class ActorProcess:
     """The learner's handle on its actor: start it, send it policies, take its messages, close it."""
 
@@ -434,10 +409,12 @@ class ActorProcess:
         self.closed = threading.Event()
         self.display: np.ndarray | None = None
         message = self._get(START_SECONDS)
-        if message is None or message[0] != "ready":
+        if not isinstance(message, Ready):
             self.close()
-            raise ActorError(f"the actor did not start within {START_SECONDS:.0f} s: {message}")
-        self.action_space, self.observation_space = message[1], message[2]
+            if isinstance(message, Failure):
+                raise ActorError(f"the actor failed to start: {message.traceback.strip().splitlines()[-1]}")
+            raise ActorError(f"the actor did not start within {START_SECONDS:.0f} s")
+        self.action_space, self.observation_space = message.action_space, message.observation_space
         self.keepalive = threading.Thread(target=self._keep_alive, name="actor-keepalive", daemon=True)
         self.keepalive.start()
 
@@ -452,22 +429,21 @@ class ActorProcess:
 
     def start(self, step: int) -> None:
         """The run is at `step` (after its checkpoint): the actor may begin its first episode."""
-        self._send(("start", step))
+        self._send(Start(step))
 
     def send_policy(self, modules: dict[str, dict[str, Any]]) -> None:
-        self._send(("policy", modules))
+        self._send(PolicyWeights(modules))
 
-    def next_message(self, timeout: float) -> ActorStep | None:
-        """The actor's next message within `timeout` seconds, or None."""
+    def next_message(self, timeout: float) -> ActorMessage | None:
+        """The actor's next message within `timeout` seconds, or None; ActorError for its failure."""
         message = self._get(timeout)
-        if message is None:
-            return None
-        step = actor_step(message)
-        if step.display is not None:
-            self.display = step.display
-        return step
+        if isinstance(message, Failure):
+            raise ActorError(f"the actor failed:\n{message.traceback}")
+        if isinstance(message, EpisodeStart | Transition):
+            self.display = message.display
+        return message
 
-    def _get(self, timeout: float) -> tuple | None:
+    def _get(self, timeout: float) -> Any:
         try:
             return self.outbox.get(timeout=timeout)
         except queue.Empty:
@@ -475,7 +451,7 @@ class ActorProcess:
                 raise ActorError(f"the actor exited (code {self.process.exitcode})") from None
             return None
 
-    def _send(self, message: tuple) -> None:
+    def _send(self, message: Any) -> None:
         with self.send_lock:
             if not self.closed.is_set():
                 self.connection.send(message)
@@ -483,7 +459,7 @@ class ActorProcess:
     def _keep_alive(self) -> None:
         while not self.closed.wait(KEEPALIVE_SECONDS):
             try:
-                self._send(("beat",))
+                self._send(KeepAlive())
             except (BrokenPipeError, OSError):
                 return
 
@@ -492,7 +468,7 @@ class ActorProcess:
         if self.closed.is_set():
             return
         with contextlib.suppress(BrokenPipeError, OSError):
-            self._send(("close",))
+            self._send(Close())
         self.closed.set()
         self.process.join(timeout=10)
         if self.process.is_alive():

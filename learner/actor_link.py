@@ -5,7 +5,7 @@ checkpoint store (a folder both mount, or object storage by URL).
 - The learner's end (`RemoteActor`) has the local actor's interface (learner/actor.py's ActorProcess): it opens
   the link, stamps a keep-alive four times a second, writes each new pi to the checkpoint store
   (ACTOR_POLICY_FILENAME) and publishes its version, and takes the actor's steps from the database in order.
-- The actor's end (`StoreLink`) gives learner/actor.py's `_Actor` the pipe and queue it expects: a thread polls the
+- The actor's end (`StoreLink`) gives learner/actor.py's `ActorLoop` the pipe and queue it expects: a thread polls the
   link (new keep-alive, start, close, a newer policy: loaded from the checkpoint store between the steps) and
   another posts the actor's messages, so the robot's clock never waits for the database.
 - `serve_remote` is `raq actor`: it makes the robot's env once and drives it for every learner that opens the
@@ -31,14 +31,20 @@ from contract.checkpoint_location import ACTOR_POLICY_FILENAME, checkpoint_url, 
 from contract.config import TrainConfig
 from contract.envs import control_rate, encode_png, jsonable, make_env
 from contract.store import RunStatus, Store, is_transient
-from learner.actor import (
-    KEEPALIVE_SECONDS,
+from learner.actor import KEEPALIVE_SECONDS, ActorLoop, ActorSettings, ActorState
+from learner.actor_messages import (
     ActorError,
-    ActorSettings,
-    ActorState,
-    ActorStep,
-    _Actor,
-    actor_step,
+    ActorMessage,
+    Close,
+    EpisodeStart,
+    Failure,
+    KeepAlive,
+    PolicyWeights,
+    Ready,
+    Start,
+    Transition,
+    message_items,
+    message_of,
 )
 from learner.checkpoint import load_checkpoint, save_checkpoint
 
@@ -55,10 +61,10 @@ WAITING_FOR_LEARNER = "waiting for a learner"
 
 
 # ====================================================================== messages as rows
-def encode_message(message: tuple) -> tuple[str, dict[str, Any], bytes | None, bytes | None]:
-    """One of `_Actor`'s messages as a row: its kind, its items as JSON, and up to two images as PNGs (the
-    observation and the display view, lossless)."""
-    kind, *items = message
+def encode_message(message: Any) -> tuple[str, dict[str, Any], bytes | None, bytes | None]:
+    """One of the actor's messages (learner/actor_messages.py) as a row: its kind, its fields as JSON, and up to
+    two images as PNGs (the observation and the display view, lossless)."""
+    kind, items = message.kind, message_items(message)
     images: list[bytes] = []
 
     def encoded(value: Any) -> Any:
@@ -76,7 +82,7 @@ def encode_message(message: tuple) -> tuple[str, dict[str, Any], bytes | None, b
     return kind, payload, images[0], images[1]
 
 
-def decode_message(kind: str, payload: dict[str, Any], observation: bytes | None, display: bytes | None) -> tuple:
+def decode_message(kind: str, payload: dict[str, Any], observation: bytes | None, display: bytes | None) -> Any:
     """The message `encode_message` stored."""
     pngs = (observation, display)
 
@@ -90,7 +96,7 @@ def decode_message(kind: str, payload: dict[str, Any], observation: bytes | None
             return np.asarray(value["__array__"], dtype=value["dtype"])
         return value
 
-    return (kind, *(decoded(item) for item in payload["items"]))
+    return message_of(kind, [decoded(item) for item in payload["items"]])
 
 
 def spaces_json(action_space: spaces.Box, observation_space: spaces.Box, hz: float) -> dict[str, Any]:
@@ -116,8 +122,8 @@ class StoreLink:
 
     def __init__(self, store: Store, *, run_id: int, policy_url: str, hz: float) -> None:
         self.store, self.run_id, self.policy_url, self.hz = store, run_id, policy_url, hz
-        self.inbox: queue.Queue[tuple] = queue.Queue()
-        self.outbox: queue.Queue[tuple] = queue.Queue()
+        self.inbox: queue.Queue[Any] = queue.Queue()
+        self.outbox: queue.Queue[Any] = queue.Queue()
         self.connection = self  # (poll and recv below)
         self.closed = threading.Event()
         self.started = False
@@ -133,7 +139,7 @@ class StoreLink:
     def poll(self) -> bool:
         return not self.inbox.empty()
 
-    def recv(self) -> tuple:
+    def recv(self) -> Any:
         return self.inbox.get_nowait()
 
     def close(self) -> None:
@@ -149,17 +155,17 @@ class StoreLink:
                 link = self.store.actor_link(run_id=self.run_id)
                 if link.learner_seen_at is not None and link.learner_seen_at != self.learner_seen_at:
                     self.learner_seen_at = link.learner_seen_at
-                    self.inbox.put(("beat",))
+                    self.inbox.put(KeepAlive())
                 if link.start_step is not None and not self.started:
                     self.started = True
-                    self.inbox.put(("start", link.start_step))
+                    self.inbox.put(Start(link.start_step))
                 if link.policy_version > self.policy_version:
                     state = load_checkpoint(self.policy_url)
                     if state is not None:
                         self.policy_version = max(link.policy_version, int(state["version"]))
-                        self.inbox.put(("policy", state["modules"]))
+                        self.inbox.put(PolicyWeights(state["modules"]))
                 if link.learner_closed and self.started:
-                    self.inbox.put(("close",))
+                    self.inbox.put(Close())
                     return
 
     def _post(self) -> None:
@@ -172,11 +178,11 @@ class StoreLink:
                     message = self.outbox.get_nowait()
                 except queue.Empty:
                     break
-                if message[0] == "ready":
-                    action_space, observation_space = message[1], message[2]
+                if isinstance(message, Ready):
                     with contextlib.suppress(Exception):
                         self.store.announce_actor(
-                            run_id=self.run_id, spaces=spaces_json(action_space, observation_space, self.hz)
+                            run_id=self.run_id,
+                            spaces=spaces_json(message.action_space, message.observation_space, self.hz),
                         )
                     continue
                 waiting.append(encode_message(message))
@@ -216,7 +222,7 @@ def serve_remote(store: Store, *, run_id: int, checkpoint_base: str, stop: threa
             if ended is not None:
                 return ended
             link = StoreLink(store, run_id=run_id, policy_url=policy_url, hz=hz)
-            actor = _Actor(settings, link.connection, link.outbox, env=env)
+            actor = ActorLoop(settings, link.connection, link.outbox, env=env)
             try:
                 actor.run()
             finally:
@@ -268,7 +274,7 @@ class RemoteActor:
         self.policy_url = sibling(checkpoint_file, ACTOR_POLICY_FILENAME)
         self.closed = threading.Event()
         self.display: np.ndarray | None = None
-        self.buffer: deque[tuple] = deque()
+        self.buffer: deque[Any] = deque()
         self.cursor, self.fetched_at = 0, -1.0
         self.policy_version = store.open_actor_link(run_id=run_id, start_step=None).policy_version
         self.keepalive = threading.Thread(target=self._keep_alive, name="link-keepalive", daemon=True)
@@ -308,8 +314,8 @@ class RemoteActor:
         save_checkpoint(self.policy_url, {"version": self.policy_version + 1, "modules": modules})
         self.policy_version = self.store.publish_actor_policy(run_id=self.run_id)
 
-    def next_message(self, timeout: float) -> ActorStep | None:
-        """The actor's next message within `timeout` seconds, or None."""
+    def next_message(self, timeout: float) -> ActorMessage | None:
+        """The actor's next message within `timeout` seconds, or None; ActorError for its failure."""
         deadline = time.monotonic() + timeout
         while not self.buffer:
             if time.monotonic() - self.fetched_at >= LINK_POLL_SECONDS / 2:
@@ -319,10 +325,12 @@ class RemoteActor:
             if remaining <= 0:
                 return None
             time.sleep(min(remaining, LINK_POLL_SECONDS / 2))
-        step = actor_step(self.buffer.popleft())
-        if step.display is not None:
-            self.display = step.display
-        return step
+        message = self.buffer.popleft()
+        if isinstance(message, Failure):
+            raise ActorError(f"the actor failed:\n{message.traceback}")
+        if isinstance(message, EpisodeStart | Transition):
+            self.display = message.display
+        return message
 
     def _fetch(self) -> None:
         self.fetched_at = time.monotonic()

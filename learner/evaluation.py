@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import gymnasium
 import numpy as np
 
-from contract.config import TrainConfig
+from contract.config import EvaluationConfig, TaskConfig
 from contract.envs import check_action_space, display_image, encode_gif, model_image, scale_action, success_of
 from contract.store import Store
 from learner.reward import RewardModel
@@ -26,7 +26,7 @@ EVAL_LOCKSTEP = 8
 """Evaluation episodes run together (each on its own env); more episodes run in groups of this many."""
 
 
-def eval_env_count(config: TrainConfig) -> int:
+def eval_env_count(config: EvaluationConfig) -> int:
     """How many envs an evaluation needs: one per episode run in lockstep (at least one)."""
     return max(1, min(config.eval_episodes, EVAL_LOCKSTEP))
 
@@ -47,10 +47,12 @@ class Evaluator:
     """Runs and records evaluations of `agent` on `envs` (not the training env), in lockstep."""
 
     def __init__(
-        self, config: TrainConfig, *, envs: list[gymnasium.Env], agent: SACAgent, reward_model: RewardModel | None,
-        store: Store, run_id: int, control: RunControl,
+        self, config: EvaluationConfig, task: TaskConfig, *, envs: list[gymnasium.Env], agent: SACAgent,
+        reward_model: RewardModel | None, store: Store, run_id: int, control: RunControl,
     ) -> None:  # fmt: skip
-        self.config, self.envs, self.agent, self.reward_model = config, envs, agent, reward_model
+        """No `envs`: no episodes (a robot's are a person's Evaluate now)."""
+        self.config, self.task, self.envs, self.agent, self.reward_model = config, task, envs, agent, reward_model
+        self.episode_count = config.eval_episodes if envs else 0
         self.store, self.run_id, self.control = store, run_id, control
         self.action_space = check_action_space(envs[0]) if envs else None  # (none: eval_episodes is 0)
 
@@ -65,10 +67,9 @@ class Evaluator:
     def run_episodes(self, step: int) -> list[Episode] | None:
         """The evaluation's episodes, `EVAL_LOCKSTEP` at a time; None when an interrupt cut them short. They read
         the policy only (f_psi is read by `record`, so it may train meanwhile on another thread)."""
-        cfg = self.config
         episodes: list[Episode] = []
-        for first in range(0, cfg.eval_episodes, max(1, len(self.envs))):
-            count = min(len(self.envs), cfg.eval_episodes - first)
+        for first in range(0, self.episode_count, max(1, len(self.envs))):
+            count = min(len(self.envs), self.episode_count - first)
             episodes += self._episodes(step, first, count)
             if self.control.interrupted:
                 return None
@@ -101,16 +102,16 @@ class Evaluator:
 
     def _episodes(self, step: int, first: int, count: int) -> list[Episode]:
         """Episodes first .. first + count - 1 on as many envs, acting on all that are running in one batch."""
-        cfg = self.config
+        cfg, task = self.config, self.task
         episodes = []
         for index, env in enumerate(self.envs[:count]):
-            raw, info = env.reset(seed=cfg.seed * 100_003 + 1_000_000 + step + first + index)
-            obs = model_image(raw, cfg.image_size, cfg.env_id)
+            raw, info = env.reset(seed=task.seed * 100_003 + 1_000_000 + step + first + index)
+            obs = model_image(raw, task.image_size, task.env_id)
             episode = Episode(obs=obs, success=success_of(info))
             if first + index == 0:  # the recorded rollout
                 episode.frames.append(display_image(env, cfg.rollout_size, obs))
             episodes.append(episode)
-        for _ in range(cfg.episode_steps):
+        for _ in range(task.episode_steps):
             running = [index for index, episode in enumerate(episodes) if not episode.done]
             if not running or self.control.interrupted:
                 break
@@ -119,7 +120,7 @@ class Evaluator:
             for index, action in zip(running, actions, strict=True):
                 env, episode = self.envs[index], episodes[index]
                 raw, reward, terminated, truncated, info = env.step(scale_action(action, self.action_space))
-                episode.obs = model_image(raw, cfg.image_size, cfg.env_id)
+                episode.obs = model_image(raw, task.image_size, task.env_id)
                 episode.total += float(reward)
                 episode.next_obs.append(episode.obs)
                 episode.success = success_of(info)

@@ -48,7 +48,7 @@ def load_policy(path: str | Path, device: str = "cpu") -> Policy:
     actor = state["agent"]["actor"]
     last_bias = [key for key in actor if key.endswith(".bias")][-1]
     action_dim = int(actor[last_bias].shape[0]) // 2  # the actor's last layer gives mean and log std
-    agent = SACAgent(config, action_dim=action_dim)
+    agent = SACAgent.for_run(config, action_dim=action_dim)
     for name, module in agent.modules().items():  # a policy file has the actor (and encoder); a checkpoint all
         if name in ("actor", "encoder"):
             module.load_state_dict(state["agent"][name])

@@ -13,8 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from contract.algorithms import ALGORITHM_SPECS
-from contract.config import TrainConfig
+from contract.config import QueryConfig
 from contract.envs import decode_image, encode_png, jsonable
 from contract.store import AnsweredQuery, QueryStatus, Store
 from learner.queries import QuerySelector, digest
@@ -38,16 +37,16 @@ class QueryChannel:
     """Asks about the observation f_psi rates likeliest to be a success, at most `query_budget` times."""
 
     def __init__(
-        self, config: TrainConfig, *, store: Store, run_id: int, reward_model: RewardModel, counters: Counters,
-        control: RunControl, on_answers: Callable[[list[AnsweredQuery]], None] | None = None,
+        self, config: QueryConfig, *, store: Store, run_id: int, reward_model: RewardModel, counters: Counters,
+        control: RunControl, keep_no_answers: bool, image_size: int,
     ) -> None:  # fmt: skip
-        """`on_answers`: told of every batch of answers read (a robot run's evaluation rounds count theirs)."""
-        self.config, self.store, self.run_id = config, store, run_id
+        """`keep_no_answers`: a "no" joins f_psi's negatives; `image_size`: f_psi's input side."""
+        self.config, self.store, self.run_id, self.image_size = config, store, run_id, image_size
         self.reward_model, self.counters, self.control = reward_model, counters, control
-        self.on_answers = on_answers
+        self.on_answers: Callable[[list[AnsweredQuery]], None] | None = None
+        """Told of every batch of answers read (a robot run's evaluation rounds count theirs)."""
         self.selector = QuerySelector(config.query_strategy, config.query_candidates)
-        # a "no" joins the negatives: raq's pool, or vice_raq's answered negatives when it samples from them
-        self.keep_no_answers = ALGORITHM_SPECS[config.algorithm].negatives == "pool" or config.no_answer_share > 0
+        self.keep_no_answers = keep_no_answers
         self.asked = 0  # (evaluation questions are not asked against the budget)
         self.pending: list[Pending] = []  # observations waiting to be scored in one batch
         # every answered query's image and answer, by query id: what the page shows as the classifier's
@@ -128,7 +127,7 @@ class QueryChannel:
         answers = self.store.new_answers(run_id=self.run_id, since_seq=self.counters.answer_cursor)
         yes = no = 0
         for answer in answers:
-            image = decode_image(answer.model_png, self.config.image_size)
+            image = decode_image(answer.model_png, self.image_size)
             self.answered[answer.query_id] = (image, answer.success)
             if answer.success:
                 model.add_positive(image)
@@ -155,7 +154,7 @@ class QueryChannel:
         keys = set()
         for query in queries:
             self.control.tick()
-            image = decode_image(self.store.query_image(query_id=query.id, resolution="model"), self.config.image_size)
+            image = decode_image(self.store.query_image(query_id=query.id, resolution="model"), self.image_size)
             if query.strategy != EVALUATION_STRATEGY:
                 keys.add(digest(image))
             if query.status == QueryStatus.ANSWERED and query.used_at is not None:

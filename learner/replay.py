@@ -111,30 +111,6 @@ class ReplayBuffer:
             obs, next_obs = random_shift(obs, pad, rng), random_shift(next_obs, pad, rng)
         return Batch(indices, obs, self.actions[indices], next_obs, self.not_done[indices])
 
-    def n_step_sample(
-        self, rng: np.random.Generator, batch_size: int, pad: int, *, n: int, stride: int, discount: float
-    ) -> tuple[Batch, np.ndarray, np.ndarray]:
-        """`sample`, each transition followed for n steps of its env (DrQ-v2's n-step return): the batch's s' is
-        the chain's last s' and its not_done the bootstrap weight discount^(m-1) * not_done of the chain's last
-        transition; also the [B, n] transition indices and their weights discount^k (0 past a chain's end). A
-        chain of m < n steps stops at an episode's end, a terminal or the newest transition."""
-        first = rng.integers(0, len(self), size=batch_size)
-        newest = self.added - 1
-        absolute = newest - (newest - first) % self.capacity  # the transition numbers of the sampled positions
-        steps = absolute[:, None] + stride * np.arange(n)
-        chains = steps % self.capacity
-        follows = self.obs_slot[chains[:, 1:]] == self.next_slot[chains[:, :-1]]  # the same episode goes on
-        follows &= (self.not_done[chains[:, :-1]] > 0) & (steps[:, 1:] <= newest)
-        valid = np.concatenate([np.ones((batch_size, 1), dtype=bool), np.cumprod(follows, axis=1, dtype=bool)], 1)
-        weights = np.where(valid, discount ** np.arange(n, dtype=np.float32), 0.0).astype(np.float32)
-        last = chains[np.arange(batch_size), valid.sum(axis=1) - 1]
-        obs = self.frames[self.obs_slot[first]]
-        next_obs = self.frames[self.next_slot[last]]
-        if pad > 0:
-            obs, next_obs = random_shift(obs, pad, rng), random_shift(next_obs, pad, rng)
-        bootstrap = (discount ** (valid.sum(axis=1) - 1) * self.not_done[last]).astype(np.float32)
-        return Batch(first, obs, self.actions[first], next_obs, bootstrap), chains, weights
-
     def sample_next_frames(self, rng: np.random.Generator, count: int) -> np.ndarray:
         """Uniform replay observations (the s' of uniform transitions): VICE's negatives."""
         indices = rng.integers(0, len(self), size=count)

@@ -5,8 +5,7 @@ vice / vice_raq: AIRL discriminator D(s, a) = sigmoid(f_psi(s) - log pi(a|s)) (t
 raq / naive_classifier: plain sigmoid cross-entropy on f_psi(s).
 Mixup (Eq. mixup): lambda ~ Beta(alpha, alpha) per sample, each sample mixed with a random permutation of the
 combined batch, images and labels alike.
-The SAC reward is the logit f_psi(s') itself (no log pi, no normalisation), or with `reward_centering` that logit
-less its replay mean (`center`). f_psi runs under the config's
+The SAC reward is the logit f_psi(s') itself (no log pi, no normalisation). f_psi runs under the run's
 precision like the SAC networks (bf16 autocast: convs and hidden layers in bf16; weights, the last layer and the
 loss in fp32, so logits, rewards and query scores are not rounded to bf16).
 """
@@ -21,7 +20,9 @@ import torch
 import torch.nn.functional as F
 
 from contract.algorithms import ALGORITHM_SPECS
-from contract.config import TrainConfig
+from contract.config import ClassifierConfig, NetworkConfig, TrainConfig
+from contract.images import decoded_array, model_array
+from contract.store import Store
 from learner.networks import RewardClassifier, autocast_of, dtype_of, resolve_precision, to_float
 from learner.replay import ReplayBuffer
 
@@ -65,26 +66,36 @@ class RewardModel:
     is done, so the evaluation's record reads one f_psi.
     """
 
-    def __init__(self, config: TrainConfig, rng: np.random.Generator) -> None:
-        self.config = config
+    def __init__(
+        self, classifier: ClassifierConfig, networks: NetworkConfig, rng: np.random.Generator, *, airl: bool,
+        image_size: int, device: str = "cpu", precision: str = "auto",
+    ) -> None:  # fmt: skip
+        """`airl`: trained as VICE's discriminator (AlgorithmSpec.airl), else as a plain classifier."""
+        self.config = classifier
         self.rng = rng
-        self.device = torch.device(config.device)
-        self.precision = resolve_precision(config.precision, self.device.type)
-        self.net = RewardClassifier(config.image_size, config.conv_filters, config.hidden_dim, config.encoder)
+        self.device = torch.device(device)
+        self.precision = resolve_precision(precision, self.device.type)
+        self.net = RewardClassifier(image_size, networks.conv_filters, networks.hidden_dim, networks.encoder)
         self.net.to(self.device, memory_format=torch.channels_last)
         self.trainee = copy.deepcopy(self.net)
         self.opt = torch.optim.Adam(
-            self.trainee.parameters(), lr=config.classifier_lr, capturable=self.device.type == "cuda"
+            self.trainee.parameters(), lr=classifier.classifier_lr, capturable=self.device.type == "cuda"
         )  # (capturable: its step counts on the device, so a step can be a CUDA graph)
-        self.airl = ALGORITHM_SPECS[config.algorithm].airl
-        shape = (0, config.image_size, config.image_size, 3)
+        self.airl = airl
+        shape = (0, image_size, image_size, 3)
         self.goals = np.zeros(shape, dtype=np.uint8)
         self.answered_positives = np.zeros(shape, dtype=np.uint8)
         self.initial_negatives = np.zeros(shape, dtype=np.uint8)
         self.answered_negatives = np.zeros(shape, dtype=np.uint8)
-        self.offset = torch.zeros((), device=self.device)
-        """The reward's offset (0 unless `center` set it): r = f_psi(s') - offset; a device scalar the graph reads."""
         self.version = 0
+
+    @classmethod
+    def for_run(cls, config: TrainConfig, rng: np.random.Generator) -> "RewardModel":
+        """The run's f_psi: its classifier and network parts, its method's loss, its image size and device."""
+        return cls(
+            config.classifier, config.networks, rng, airl=ALGORITHM_SPECS[config.algorithm].airl,
+            image_size=config.image_size, device=config.device, precision=config.precision,
+        )  # fmt: skip
 
     # ------------------------------------------------------------------ example sets
     @property
@@ -117,16 +128,8 @@ class RewardModel:
         return torch.cat(out).cpu().numpy() if out else np.zeros(0, dtype=np.float32)
 
     def rewards_on_device(self, images: torch.Tensor) -> torch.Tensor:
-        """r = f_psi(s') - offset of uint8 NHWC device images, without a host sync (as `rewards` computes it)."""
-        return self.logits_on_device(images).float() - self.offset
-
-    def center(self, replay_images: np.ndarray) -> float:
-        """The offset set to f_psi's mean on these replay observations; a new version (every cached reward stale).
-        A constant taken from every reward of a task without terminal states shifts each Q by offset / (1 - gamma)
-        and leaves the policy as it was; what it removes is the Q targets' drift as f_psi's level follows log pi."""
-        self.offset.fill_(float(self.logits(replay_images).mean()))
-        self.version += 1
-        return self.offset.item()
+        """r = f_psi(s') of uint8 NHWC device images, without a host sync (as `rewards` computes it)."""
+        return self.logits_on_device(images).float()
 
     def logits_on_device(self, images: torch.Tensor) -> torch.Tensor:
         """f_psi (fp32 logits) of uint8 NHWC images already on the device, without gradients or a host sync."""
@@ -138,7 +141,7 @@ class RewardModel:
         stale = indices[replay.reward_version[indices] != self.version]
         if len(stale):
             stale = np.unique(stale)
-            replay.reward_cache[stale] = self.logits(replay.frames[replay.next_slot[stale]]) - self.offset.item()
+            replay.reward_cache[stale] = self.logits(replay.frames[replay.next_slot[stale]])
             replay.reward_version[stale] = self.version
         return replay.reward_cache[indices]
 
@@ -203,16 +206,9 @@ class RewardModel:
         labels = torch.zeros(len(images), device=self.device)
         labels[:n_positive] = 1.0
         mixed_images, mixed_labels = mixup(images, labels, self.config.mixup_alpha, rng)
-        smoothing, penalty = self.config.classifier_label_smoothing, self.config.classifier_gradient_penalty
-        mixed_labels = mixed_labels * (1.0 - smoothing) + smoothing / 2
-        if penalty > 0:
-            mixed_images = mixed_images.detach().requires_grad_(True)
         with self.autocast():
             logits, _, _ = self.discriminator_logits(mixed_images, policy)
         loss = F.binary_cross_entropy_with_logits(logits, mixed_labels)
-        if penalty > 0:  # zero-centred (R1-style, Mescheder et al. 2018) at the mixed images; log pi is detached
-            (grads,) = torch.autograd.grad(logits.sum(), mixed_images, create_graph=True)
-            loss = loss + penalty / 2 * grads.float().pow(2).flatten(1).sum(1).mean()
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
         self.opt.step()
@@ -240,7 +236,6 @@ class RewardModel:
             "net": self.trainee.state_dict(),
             "opt": self.opt.state_dict(),
             "version": self.version,
-            "offset": self.offset.item(),
             "goals": torch.from_numpy(self.goals.copy()),
             "answered_positives": torch.from_numpy(self.answered_positives.copy()),
             "initial_negatives": torch.from_numpy(self.initial_negatives.copy()),
@@ -252,6 +247,22 @@ class RewardModel:
         self.trainee.load_state_dict(state["net"])
         self.opt.load_state_dict(state["opt"])
         self.version = int(state["version"]) + 1  # anything cached before the load is stale
-        self.offset.fill_(float(state.get("offset", 0.0)))  # (checkpoints written before the field: 0)
         for name in ("goals", "answered_positives", "initial_negatives", "answered_negatives"):
             setattr(self, name, state[name].numpy())
+
+
+def goal_examples(store: Store, goal_set_id: int, size: int) -> tuple[np.ndarray, str]:
+    """A goal set's examples at `size` x `size` px (remade from their originals where the set's model size is
+    another), and what the run's events say of them."""
+    goals = store.goal_images(goal_set_id=goal_set_id)
+    if not goals:
+        raise ValueError(f"goal set {goal_set_id} has no goal examples")
+    images, remade = [], 0
+    for goal in goals:
+        image = decoded_array(goal.model_png)
+        if image.shape[:2] != (size, size):
+            image = model_array(goal.original, size)
+            remade += 1
+        images.append(image)
+    note = f" ({remade} remade at {size}x{size} px from their originals)" if remade else ""
+    return np.stack(images), f"loaded {len(goals)} goal examples{note}"

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from contract.config import TrainConfig
+from contract.config import EvaluationConfig, TaskConfig
 from contract.envs import encode_png, model_image, success_of
 from contract.store import AnsweredQuery, QueryStatus, Store
-from learner.actor import ActorStep
+from learner.actor_messages import Transition
 from learner.reward import RewardModel
 from learner.run_control import Counters, RunControl
 
@@ -40,12 +40,13 @@ class RobotEvaluation:
     """A robot run's Evaluate now rounds: their episodes' last frames asked about, their answers counted."""
 
     def __init__(
-        self, config: TrainConfig, *, store: Store, run_id: int, reward_model: RewardModel | None,
+        self, task: TaskConfig, evaluation: EvaluationConfig, *, store: Store, run_id: int,
+        reward_model: RewardModel | None,
         counters: Counters, control: RunControl, reads_answers: bool,
     ) -> None:  # fmt: skip
         """Reads the run's evaluation questions asked so far (`sync`). `reads_answers`: the run has no QueryChannel,
         so the answers are read here (they join nothing)."""
-        self.config, self.store, self.run_id = config, store, run_id
+        self.task, self.log_every, self.store, self.run_id = task, evaluation.log_every, store, run_id
         self.reward_model, self.counters, self.control = reward_model, counters, control
         self.reads_answers = reads_answers
         self.episode: EvaluationEpisode | None = None
@@ -78,7 +79,7 @@ class RobotEvaluation:
                 level="warning",
             )
 
-    def take_step(self, step: ActorStep, *, env_step: int) -> None:
+    def take_step(self, step: Transition, *, env_step: int) -> None:
         """One of the actor's steps, env step `env_step` of the run: at an evaluation episode's end its last frame
         is asked about. Without a QueryChannel the answers are read here, every log_every steps."""
         if step.evaluation_round is not None:
@@ -86,16 +87,16 @@ class RobotEvaluation:
                 self.episode = EvaluationEpisode(step.evaluation_round, began_at=env_step - 1)
                 self.began_at.setdefault(step.evaluation_round, env_step - 1)
             self.episode.length += 1
-            if step.terminated or step.truncated or self.episode.length >= self.config.episode_steps:
+            if step.terminated or step.truncated or self.episode.length >= self.task.episode_steps:
                 self._ask(step, env_step)
                 self.episode = None
-        if self.reads_answers and env_step % self.config.log_every == 0:
+        if self.reads_answers and env_step % self.log_every == 0:
             self.read_answers()
 
-    def _ask(self, step: ActorStep, env_step: int) -> None:
+    def _ask(self, step: Transition, env_step: int) -> None:
         assert self.episode is not None and step.observation is not None
         round_, number = self.episode.round, self.asked.get(self.episode.round, 0) + 1
-        image = model_image(step.observation, self.config.image_size, self.config.env_id)
+        image = model_image(step.observation, self.task.image_size, self.task.env_id)
         display = image if step.display is None else step.display
         score = 0.0 if self.reward_model is None else float(self.reward_model.logits(image[None])[0])
         query = self.store.post_query(

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from contract.config import TrainConfig
+from contract.config import NetworkConfig, SACConfig, TrainConfig
 from learner.networks import (
     TWIN_MLP_INDICES,
     Actor,
@@ -51,40 +51,51 @@ def sample_policy(
 class SACAgent:
     """Actor, twin critic, target critic, temperature, and their Adam optimizers."""
 
-    def __init__(self, config: TrainConfig, action_dim: int) -> None:
-        self.config = config
-        self.device = torch.device(config.device)
-        self.precision = resolve_precision(config.precision, self.device.type)
+    def __init__(
+        self, sac: SACConfig, networks: NetworkConfig, action_dim: int, *, image_size: int, device: str = "cpu",
+        precision: str = "auto",
+    ) -> None:  # fmt: skip
+        self.config = sac
+        self.device = torch.device(device)
+        self.precision = resolve_precision(precision, self.device.type)
         self.action_dim = action_dim
-        size, filters, hidden = config.image_size, config.conv_filters, config.hidden_dim
-        if config.shared_encoder:
-            self.encoder: SharedEncoder | None = SharedEncoder(size, filters, config.encoder, config.feature_dim)
+        size, filters, hidden, kind = image_size, networks.conv_filters, networks.hidden_dim, networks.encoder
+        if networks.shared_encoder:
+            self.encoder: SharedEncoder | None = SharedEncoder(size, filters, kind, networks.feature_dim)
             feature_dim = self.encoder.output_dim
             self.actor = Actor(feature_dim, action_dim, hidden, encoder=None)
-            self.critic = Critic(feature_dim, action_dim, hidden, encoders=None, layer_norm=config.critic_layer_norm)
+            self.critic = Critic(feature_dim, action_dim, hidden, encoders=None, layer_norm=networks.critic_layer_norm)
         else:
             self.encoder = None
-            feature_dim = ConvEncoder(size, filters, config.encoder).output_dim
-            self.actor = Actor(feature_dim, action_dim, hidden, encoder=ConvEncoder(size, filters, config.encoder))
-            encoders = (ConvEncoder(size, filters, config.encoder), ConvEncoder(size, filters, config.encoder))
+            feature_dim = ConvEncoder(size, filters, kind).output_dim
+            self.actor = Actor(feature_dim, action_dim, hidden, encoder=ConvEncoder(size, filters, kind))
+            encoders = (ConvEncoder(size, filters, kind), ConvEncoder(size, filters, kind))
             self.critic = Critic(
-                feature_dim, action_dim, hidden, encoders=encoders, layer_norm=config.critic_layer_norm
+                feature_dim, action_dim, hidden, encoders=encoders, layer_norm=networks.critic_layer_norm
             )
         for module in self.modules().values():
             module.to(self.device, memory_format=torch.channels_last)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
-        self.log_alpha = torch.tensor(math.log(config.initial_alpha), device=self.device, requires_grad=True)
-        self.target_entropy = float(config.target_entropy if config.target_entropy is not None else -action_dim)
+        self.log_alpha = torch.tensor(math.log(sac.initial_alpha), device=self.device, requires_grad=True)
+        self.target_entropy = float(sac.target_entropy if sac.target_entropy is not None else -action_dim)
         fused = self.device.type in ("cpu", "cuda")
         capturable = self.device.type == "cuda"  # step counts on the device: an update can be a CUDA graph
         critic_params = list(self.critic.parameters())
         if self.encoder is not None:
             critic_params += list(self.encoder.parameters())
-        self.critic_opt = torch.optim.Adam(critic_params, lr=config.critic_lr, fused=fused, capturable=capturable)
+        self.critic_opt = torch.optim.Adam(critic_params, lr=sac.critic_lr, fused=fused, capturable=capturable)
         self.actor_opt = torch.optim.Adam(
-            self.actor.parameters(), lr=config.actor_lr, fused=fused, capturable=capturable
+            self.actor.parameters(), lr=sac.actor_lr, fused=fused, capturable=capturable
         )
-        self.alpha_opt = torch.optim.Adam([self.log_alpha], lr=config.alpha_lr, capturable=capturable)
+        self.alpha_opt = torch.optim.Adam([self.log_alpha], lr=sac.alpha_lr, capturable=capturable)
+
+    @classmethod
+    def for_run(cls, config: TrainConfig, action_dim: int) -> "SACAgent":
+        """The run's agent: its SAC and network parts, its image size, device and precision."""
+        return cls(
+            config.sac, config.networks, action_dim, image_size=config.image_size, device=config.device,
+            precision=config.precision,
+        )  # fmt: skip
 
     # ------------------------------------------------------------------ helpers
     def modules(self) -> dict[str, torch.nn.Module]:

@@ -122,16 +122,8 @@ class HostUpdates:
         return "replay sampled on the host (numpy), rewards f_psi(s') cached per classifier version"
 
     def sac_update(self) -> None:
-        config = self.config
-        if config.n_step == 1:
-            batch = self.replay.sample(self.rng, config.batch_size, self.pad)
-            rewards = self._rewards(batch.indices)
-        else:  # R = sum_k gamma^k r_{t+k}; the target's gamma * not_done is gamma^m with the batch's bootstrap weight
-            batch, chains, weights = self.replay.n_step_sample(
-                self.rng, config.batch_size, self.pad, n=config.n_step, stride=config.num_envs,
-                discount=config.discount,
-            )  # fmt: skip
-            rewards = (self._rewards(chains.ravel()).reshape(chains.shape) * weights).sum(axis=1, dtype=np.float32)
+        batch = self.replay.sample(self.rng, self.config.batch_size, self.pad)
+        rewards = self._rewards(batch.indices)
         metrics = self.agent.update_from_arrays(batch.obs, batch.action, rewards, batch.next_obs, batch.not_done)
         metrics["reward/batch_mean"] = float(rewards.mean())
         self.metrics.add(metrics)
@@ -220,10 +212,6 @@ class DeviceUpdates:
         self, config: TrainConfig, *, agent: SACAgent, replay: ReplayBuffer, reward_model: RewardModel | None,
         spec: AlgorithmSpec, rng: np.random.Generator, graphs: bool = True,
     ) -> None:  # fmt: skip
-        if config.n_step != 1:
-            raise ValueError(
-                f"n_step {config.n_step}: the device pipeline makes one-step targets; use replay_pipeline=host"
-            )
         self.config, self.agent, self.reward_model, self.spec = config, agent, reward_model, spec
         self.graphs = graphs and agent.device.type == "cuda"
         self.host = HostUpdates(config, agent=agent, replay=replay, reward_model=reward_model, spec=spec, rng=rng)

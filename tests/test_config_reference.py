@@ -17,7 +17,7 @@ def test_every_field_has_a_part_and_a_description() -> None:
     docs = field_docs()
     for field in fields(TrainConfig):
         assert docs.get(field.name), f"{field.name} has no docstring"
-    assert config_part("device") == "execution" and config_part("n_step") == "sac"
+    assert config_part("device") == "execution" and config_part("updates_per_step") == "sac"
     assert config_part("env_id") == "task" and config_part("algorithm") == "method"
     execution = {field.name for field in fields(CONFIG_PARTS["execution"])}
     assert {"device", "precision", "num_envs", "replay_pipeline", "update_thread"} <= execution
@@ -58,9 +58,7 @@ def test_the_paper_preset_is_the_published_algorithm_whatever_the_defaults() -> 
     paper = TrainConfig.paper()
     assert (paper.classifier_steps, paper.classifier_lr, paper.no_answer_share) == (10, 1e-4, 0.0)
     assert (paper.encoder, paper.shared_encoder, paper.augmentation) == ("paper", False, "none")
-    assert (paper.n_step, paper.updates_per_step, paper.critic_layer_norm) == (1, 1, False)
-    assert not paper.reward_centering
-    assert paper.classifier_label_smoothing == paper.classifier_gradient_penalty == 0.0
+    assert (paper.updates_per_step, paper.critic_layer_norm) == (1, False)
     assert paper.exploration_noise_beta == 0.0  # SAC's i.i.d. action noise
     assert TrainConfig().no_answer_share == 0.25
 

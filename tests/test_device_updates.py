@@ -97,7 +97,7 @@ def test_rewards_computed_per_batch_equal_the_host_cache() -> None:
     config = tiny(algorithm="vice_raq")
     replay = ReplayBuffer(50, (SIZE, SIZE, 3), 2)
     filled(replay, 40, rng)
-    model = RewardModel(config, rng)
+    model = RewardModel.for_run(config, rng)
     mirror = DeviceReplay(replay, CPU)
     mirror.sync()
     batch = mirror.sample(32, pad=1)
@@ -113,10 +113,10 @@ def test_device_updates_train_like_host_updates(algorithm: str) -> None:
     torch.manual_seed(4)
     config = tiny(algorithm=algorithm, replay_pipeline="device")
     spec = ALGORITHM_SPECS[algorithm]
-    agent = SACAgent(config, action_dim=2)
+    agent = SACAgent.for_run(config, action_dim=2)
     replay = ReplayBuffer(50, (SIZE, SIZE, 3), 2)
     filled(replay, 30, rng)
-    model = RewardModel(config, rng) if spec.classifier else None
+    model = RewardModel.for_run(config, rng) if spec.classifier else None
     if model is not None:
         model.goals = rng.integers(0, 256, (4, SIZE, SIZE, 3), dtype=np.uint8)
         model.initial_negatives = rng.integers(0, 256, (6, SIZE, SIZE, 3), dtype=np.uint8)
@@ -209,8 +209,8 @@ def test_no_answers_join_a_share_of_the_vice_raq_negatives_on_host_and_device() 
     no_images[1, 0, 0] = 0
     for share, expected in ((0.25, 2), (0.0, 0)):
         config = tiny(algorithm="vice_raq", replay_pipeline="device", no_answer_share=share)
-        agent = SACAgent(config, action_dim=2)
-        model = RewardModel(config, rng)
+        agent = SACAgent.for_run(config, action_dim=2)
+        model = RewardModel.for_run(config, rng)
         model.goals = rng.integers(0, 256, (4, SIZE, SIZE, 3), dtype=np.uint8)
         device = DeviceUpdates(config, agent=agent, replay=replay, reward_model=model, spec=spec, rng=rng)
         host = device.host

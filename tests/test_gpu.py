@@ -25,7 +25,7 @@ def pipeline(
     config = TrainConfig(
         device="cuda", precision=precision, algorithm=algorithm, replay_capacity=2000, compile_updates=compiled
     )  # fmt: skip
-    agent = SACAgent(config, action_dim=3)
+    agent = SACAgent.for_run(config, action_dim=3)
     replay = ReplayBuffer(config.replay_capacity, (SIZE, SIZE, 3), 3)
     slot = replay.add_frame(rng.integers(0, 256, (SIZE, SIZE, 3), dtype=np.uint8))
     for _ in range(500):
@@ -33,7 +33,7 @@ def pipeline(
         replay.add(slot, rng.uniform(-1, 1, 3).astype(np.float32), next_slot, False, 0.0)
         slot = next_slot
     spec = ALGORITHM_SPECS[algorithm]
-    model = RewardModel(config, rng) if spec.classifier else None
+    model = RewardModel.for_run(config, rng) if spec.classifier else None
     if model is not None:
         model.goals = rng.integers(0, 256, (10, SIZE, SIZE, 3), dtype=np.uint8)
     updates = DeviceUpdates(config, agent=agent, replay=replay, reward_model=model, spec=spec, rng=rng)

@@ -26,7 +26,7 @@ from contract.settings import Settings
 from contract.store import RunStatus, Store
 from learner.checkpoint import checkpoint_path, load_checkpoint
 from learner.reward import RewardModel
-from learner.train import Outcome, Trainer
+from learner.train import Outcome, Runner, open_runner, train
 from learner.worker import work
 
 torch.set_num_threads(1)
@@ -134,22 +134,22 @@ def test_every_algorithm_runs(
 
 
 @pytest.mark.parametrize("pipeline", ["host", "device"])
-def test_a_run_with_f_psi_regularised_and_its_rewards_centered(
-    setup: tuple[Settings, Store, int], pipeline: str
-) -> None:
-    """Label smoothing, the gradient penalty and reward centering together: the run finishes, and every epoch
-    records the offset taken from the rewards."""
+def test_a_run_stored_with_retired_options_loads_and_trains(setup: tuple[Settings, Store, int], pipeline: str) -> None:
+    """A run stored by an earlier version with options since removed (n-step returns, f_psi's label smoothing and
+    gradient penalty, reward centering, envs in worker processes) trains to its end without them."""
     settings, store, goal_set_id = setup
-    config = tiny_config(
-        total_steps=150, checkpoint_every=1000, replay_pipeline=pipeline, classifier_label_smoothing=0.2,
-        classifier_gradient_penalty=10.0, reward_centering=True,
+    config = tiny_config(total_steps=150, checkpoint_every=1000, replay_pipeline=pipeline)
+    retired = {"n_step": 3, "classifier_label_smoothing": 0.2, "classifier_gradient_penalty": 10.0,
+               "reward_centering": True, "env_processes": True}  # fmt: skip
+    run = store.create_run(
+        env_id=config.env_id, algorithm=config.algorithm, config={**config.to_dict(), **retired}, seed=config.seed,
+        goal_set_id=goal_set_id, total_steps=config.total_steps,
     )  # fmt: skip
-    run_id = create_run(store, goal_set_id, config)
     assert work(settings, worker_name="w", once=True) == 0
-    run = store.get_run(run_id=run_id)
-    assert run.status == RunStatus.FINISHED, run.status_reason
-    offsets = [metric.value for metric in store.metrics(run_id=run_id) if metric.name == "reward/offset"]
-    assert len(offsets) == 150 // config.epoch_steps and all(value != 0.0 for value in offsets)
+    stored = store.get_run(run_id=run.id)
+    assert stored.status == RunStatus.FINISHED, stored.status_reason
+    assert {name: stored.config[name] for name in retired} == retired  # (what the run was stored with stays)
+    assert "reward/offset" not in {metric.name for metric in store.metrics(run_id=run.id)}
 
 
 def test_failed_run_reports_the_reason(setup: tuple[Settings, Store, int]) -> None:
@@ -167,11 +167,12 @@ def test_answers_reach_the_example_sets(
     settings, store, goal_set_id = setup
     config = tiny_config(algorithm=algorithm, no_answer_share=no_answer_share)
     run_id = create_run(store, goal_set_id, config)
-    trainer = Trainer(
+    runner = open_runner(
         config, store=store, run_id=run_id, worker="w", goal_set_id=goal_set_id,
         checkpoint_file=checkpoint_path(settings.checkpoint_dir, run_id),
     )  # fmt: skip
-    trainer._load_goals()
+    trainer = runner.trainer
+    trainer.load_goals()
     model = trainer.reward_model
     assert model is not None and len(model.positives) == 4
     yes_image = np.full((16, 16, 3), 200, np.uint8)
@@ -189,7 +190,7 @@ def test_answers_reach_the_example_sets(
         assert len(model.negatives) == negatives_before
     trainer.queries.read_answers()  # the cursor: nothing is taken twice
     assert len(model.positives) == 5
-    trainer.close()
+    runner.close()
 
 
 def _spawn_worker(settings: Settings, name: str) -> subprocess.Popen:
@@ -304,11 +305,12 @@ def test_coloured_exploration_noise_makes_an_episodes_actions_agree_and_the_run_
             total_steps=300, initial_random_steps=200, num_envs=2, exploration_noise_beta=beta, checkpoint_every=1000
         )
         run_id = create_run(store, goal_set_id, config)
-        trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
+        runner = _claimed_runner(store, settings, run_id, config, goal_set_id)
+        trainer = runner.trainer
         try:
-            assert trainer.train() == Outcome.FINISHED
+            assert train(runner) == Outcome.FINISHED
         finally:
-            trainer.close()
+            runner.close()
         actions = trainer.replay.actions[: trainer.replay.added]
         assert np.abs(actions).max() <= 1.0
         by_env = [actions[index::2] for index in range(2)]  # (the two envs' steps alternate)
@@ -321,11 +323,11 @@ def test_coloured_exploration_noise_makes_an_episodes_actions_agree_and_the_run_
     assert all(value > 0.3 for value in correlations[1.0]), correlations
 
 
-def _claimed_trainer(store: Store, settings: Settings, run_id: int, config: TrainConfig, goal_set_id: int | None,
-                     interrupt: threading.Event | None = None) -> Trainer:  # fmt: skip
+def _claimed_runner(store: Store, settings: Settings, run_id: int, config: TrainConfig, goal_set_id: int | None,
+                    interrupt: threading.Event | None = None) -> Runner:  # fmt: skip
     run = store.claim_next_run(worker="w")
     assert run is not None and run.id == run_id
-    return Trainer(
+    return open_runner(
         config, store=store, run_id=run_id, worker="w", goal_set_id=goal_set_id,
         checkpoint_file=checkpoint_path(settings.checkpoint_dir, run_id), interrupt=interrupt,
     )  # fmt: skip
@@ -348,11 +350,11 @@ def test_interrupt_stops_the_naive_classifier_training_and_the_resume_redoes_it(
         return update(model, *args, **kwargs)
 
     monkeypatch.setattr(RewardModel, "update_classifier", counted)
-    trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id, interrupt)
+    runner = _claimed_runner(store, settings, run_id, config, goal_set_id, interrupt)
     try:
-        assert trainer.train() == Outcome.REQUEUED
+        assert train(runner) == Outcome.REQUEUED
     finally:
-        trainer.close()
+        runner.close()
     assert len(calls) == 5
     state = load_checkpoint(checkpoint_path(settings.checkpoint_dir, run_id))
     assert state is not None and state["step"] == config.epoch_steps and not state["naive_trained"]
@@ -360,11 +362,11 @@ def test_interrupt_stops_the_naive_classifier_training_and_the_resume_redoes_it(
 
     calls.clear()
     resumed_config = replace(config, naive_classifier_steps=30)
-    trainer = _claimed_trainer(store, settings, run_id, resumed_config, goal_set_id)
+    runner = _claimed_runner(store, settings, run_id, resumed_config, goal_set_id)
     try:
-        assert trainer.train() == Outcome.FINISHED
+        assert train(runner) == Outcome.FINISHED
     finally:
-        trainer.close()
+        runner.close()
     assert len(calls) == 30  # trained again, in full, once
     final = load_checkpoint(checkpoint_path(settings.checkpoint_dir, run_id))
     assert final is not None and final["naive_trained"]
@@ -376,7 +378,8 @@ def test_interrupt_stops_an_evaluation(setup: tuple[Settings, Store, int]) -> No
     config = tiny_config(algorithm="sparse", eval_episodes=5)
     run_id = create_run(store, None, config)
     interrupt = threading.Event()
-    trainer = _claimed_trainer(store, settings, run_id, config, None, interrupt)
+    runner = _claimed_runner(store, settings, run_id, config, None, interrupt)
+    trainer = runner.trainer
     steps = []
     step = trainer.eval_envs[0].step  # (the 5 episodes run in lockstep: the first env's steps are the ticks)
 
@@ -390,7 +393,7 @@ def test_interrupt_stops_an_evaluation(setup: tuple[Settings, Store, int]) -> No
     try:
         trainer._evaluate()
     finally:
-        trainer.close()
+        runner.close()
     assert len(steps) == 3
     assert store.metrics(run_id=run_id) == [] and store.latest_rollout(run_id=run_id) is None
     assert trainer.counters.evaluated_step == -1  # not done: a resume at this step evaluates again
@@ -403,7 +406,7 @@ def test_setup_beats_and_a_missing_checkpoint_restarts_with_a_warning(
     config = tiny_config(algorithm="vice_raq", heartbeat_seconds=1e-6)
     run_id = create_run(store, goal_set_id, config)
     interrupt = threading.Event()
-    trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id, interrupt)
+    runner = _claimed_runner(store, settings, run_id, config, goal_set_id, interrupt)
     assert store.heartbeat(run_id=run_id, worker="w", step=500)  # another host got this far; no checkpoint here
     store.record_metrics(run_id=run_id, step=400, values={"critic/loss": 1.0})
     beats: list[dict] = []
@@ -416,9 +419,9 @@ def test_setup_beats_and_a_missing_checkpoint_restarts_with_a_warning(
     monkeypatch.setattr(store, "heartbeat", recorded)
     interrupt.set()  # stop at the first step
     try:
-        assert trainer.train() == Outcome.REQUEUED
+        assert train(runner) == Outcome.REQUEUED
     finally:
-        trainer.close()
+        runner.close()
     first_training = next(i for i, beat in enumerate(beats) if beat.get("status") == RunStatus.TRAINING)
     assert first_training >= 3  # after the goals, the checkpoint read and the restore (and the queries)
     assert beats[0]["step"] is None and beats[1]["stored_step"] == 500  # the stored step is not clobbered
@@ -446,11 +449,12 @@ def test_goals_are_remade_from_their_originals_at_the_run_image_size(setup: tupl
         )  # fmt: skip
     config = tiny_config(algorithm="vice_raq", image_size=16)
     run_id = create_run(store, goal_set.id, config)
-    trainer = _claimed_trainer(store, settings, run_id, config, goal_set.id)
+    runner = _claimed_runner(store, settings, run_id, config, goal_set.id)
+    trainer = runner.trainer
     try:
-        trainer._load_goals()
+        trainer.load_goals()
     finally:
-        trainer.close()
+        runner.close()
     assert trainer.reward_model is not None
     goals = trainer.reward_model.goals
     assert goals.shape == (2, 16, 16, 3)
@@ -460,14 +464,15 @@ def test_goals_are_remade_from_their_originals_at_the_run_image_size(setup: tupl
         np.testing.assert_array_equal(goal, expected)
     # at the goal set's own size the stored model copies are used as they are
     same = tiny_config(algorithm="vice_raq", image_size=32)
-    trainer = Trainer(
+    runner = open_runner(
         same, store=store, run_id=run_id, worker="w", goal_set_id=goal_set.id,
         checkpoint_file=checkpoint_path(settings.checkpoint_dir, run_id),
     )  # fmt: skip
+    trainer = runner.trainer
     try:
-        trainer._load_goals()
+        trainer.load_goals()
     finally:
-        trainer.close()
+        runner.close()
     assert trainer.reward_model is not None
     stored = [decode_image(g.model_png, 32) for g in store.goal_images(goal_set_id=goal_set.id)]
     np.testing.assert_array_equal(trainer.reward_model.goals, np.stack(stored))
@@ -476,13 +481,13 @@ def test_goals_are_remade_from_their_originals_at_the_run_image_size(setup: tupl
 def _posted_queries(store: Store, goal_set_id: int, config: TrainConfig, checkpoint_file: Path) -> list[tuple]:
     run_id = create_run(store, goal_set_id, config)
     store.claim_next_run(worker="w")
-    trainer = Trainer(
+    runner = open_runner(
         config, store=store, run_id=run_id, worker="w", goal_set_id=goal_set_id, checkpoint_file=checkpoint_file
     )
     try:
-        assert trainer.train() == Outcome.FINISHED
+        assert train(runner) == Outcome.FINISHED
     finally:
-        trainer.close()
+        runner.close()
     return [
         (query.env_step, store.query_image(query_id=query.id, resolution="display"), query.info)
         for query in store.list_queries(run_id=run_id, limit=100)
@@ -508,12 +513,13 @@ def test_lockstep_evaluation_runs_the_episodes_a_one_by_one_evaluation_runs(setu
     settings, store, _ = setup
     config = tiny_config(algorithm="sparse", eval_episodes=11)
     run_id = create_run(store, None, config)
-    trainer = _claimed_trainer(store, settings, run_id, config, None)
+    runner = _claimed_runner(store, settings, run_id, config, None)
+    trainer = runner.trainer
     try:
         assert len(trainer.eval_envs) == 8
         step = 200
         assert trainer.evaluator.evaluate(step)
-        env, space = trainer.env, trainer.evaluator.action_space
+        env, space = trainer.episodes[0].env, trainer.action_space
         returns, successes = [], []
         for episode in range(11):
             raw, _ = env.reset(seed=config.seed * 100_003 + 1_000_000 + step + episode)
@@ -527,7 +533,7 @@ def test_lockstep_evaluation_runs_the_episodes_a_one_by_one_evaluation_runs(setu
             returns.append(total)
             successes.append(float(info["success"]))
     finally:
-        trainer.close()
+        runner.close()
     assert len(set(returns)) > 1  # the episodes differ (their seeds)
     recorded = {m.name: m.value for m in store.metrics(run_id=run_id)}
     assert recorded["eval/return"] == pytest.approx(np.mean(returns), abs=1e-6)
@@ -543,7 +549,8 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
     settings, store, goal_set_id = setup
     config = tiny_config(algorithm="vice_raq", num_envs=3, total_steps=200, checkpoint_every=100, update_thread="off")
     run_id = create_run(store, goal_set_id, config)
-    trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
+    runner = _claimed_runner(store, settings, run_id, config, goal_set_id)
+    trainer = runner.trainer
     steps = [0, 0, 0]
     events = []  # "S" an env step, "U" a step's SAC updates
     for index, episode in enumerate(trainer.episodes):
@@ -555,17 +562,17 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
             return original(action)
 
         episode.env.step = counted
-    sac_updates = trainer._sac_updates
-    trainer._sac_updates = lambda count: events.append("U" * count) or sac_updates(count)
+    sac_updates = trainer.sac_updates
+    trainer.sac_updates = lambda count: events.append("U" * count) or sac_updates(count)
     batches = []
     act_batch = trainer.agent.act_batch
     trainer.agent.act_batch = lambda observations, deterministic=False, generator=None, noise=None: (
         batches.append(len(observations)) or act_batch(observations, deterministic, generator, noise)
     )
     try:
-        assert trainer.train() == Outcome.FINISHED
+        assert train(runner) == Outcome.FINISHED
     finally:
-        trainer.close()
+        runner.close()
     assert trainer.counters.step == 200 and trainer.replay.added == 200
     assert sum(steps) == 200 and min(steps) >= 60, steps
     assert steps[0] == 68  # the checkpoint at step 100 ended a batch after the first env; the next began with it
@@ -580,10 +587,11 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
     assert len(state["rng"]["envs"]) == 3 and state["rng"]["envs"][0] == state["rng"]["env"]
     assert len({json.dumps(s, default=str) for s in state["rng"]["envs"]}) == 3  # each env its own stream
     assert trainer.replay.frame_capacity == 2 * config.replay_capacity + 2 * 3
-    resumed = Trainer(
+    resumed_runner = open_runner(
         config, store=store, run_id=run_id, worker="w2", goal_set_id=goal_set_id,
         checkpoint_file=checkpoint_path(settings.checkpoint_dir, run_id),
     )  # fmt: skip
+    resumed = resumed_runner.trainer
     try:
         resumed._restore(state)  # every env continues its own generator, and acting its own
         assert [e.env.unwrapped.np_random.bit_generator.state for e in resumed.episodes] == state["rng"]["envs"]
@@ -592,14 +600,14 @@ def test_several_envs_step_in_lockstep_and_their_states_are_checkpointed(setup: 
         fresh = torch.Generator().manual_seed(config.seed).get_state()
         assert not torch.equal(fresh, trainer.acting_generator.get_state())  # (it has drawn the actions)
     finally:
-        resumed.close()
-    other = Trainer(
+        resumed_runner.close()
+    other = open_runner(
         replace(config, num_envs=2), store=store, run_id=run_id, worker="w3", goal_set_id=goal_set_id,
         checkpoint_file=checkpoint_path(settings.checkpoint_dir, run_id),
     )  # fmt: skip
     try:
         with pytest.raises(ValueError, match="num_envs changed"):
-            other._restore(state)
+            other.trainer._restore(state)
     finally:
         other.close()
 
@@ -615,8 +623,9 @@ def test_the_updates_run_on_the_update_thread_while_the_loop_acts_steps_and_scor
     settings, store, goal_set_id = setup
     config = tiny_config(algorithm="vice_raq", num_envs=2, total_steps=150, query_score_batch=8)
     run_id = create_run(store, goal_set_id, config)
-    trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
-    assert trainer.update_thread is not None and trainer.acting_copy is not None
+    runner = _claimed_runner(store, settings, run_id, config, goal_set_id)
+    trainer = runner.trainer
+    assert runner.update_thread is not None and runner.acting_copy is not None
     reached = threading.Event()  # the loop's thread has acted, stepped and scored in this batch
     overlapped, threads, order, scored, same_as_live = [], set(), [], [], []
     for episode in trainer.episodes:
@@ -627,7 +636,7 @@ def test_the_updates_run_on_the_update_thread_while_the_loop_acts_steps_and_scor
             return original(action)
 
         episode.env.step = step
-    acting_copy = trainer.acting_copy
+    acting_copy = runner.acting_copy
     act_batch = acting_copy.act_batch
 
     def act(observations: np.ndarray, deterministic: bool = False, noise: torch.Tensor | None = None) -> np.ndarray:
@@ -649,25 +658,25 @@ def test_the_updates_run_on_the_update_thread_while_the_loop_acts_steps_and_scor
         reached.set()  # (after the scoring: this batch's updates cannot end before it)
 
     trainer.queries.score_full_batch = score
-    sac_updates = trainer._sac_updates
+    sac_updates = trainer.sac_updates
 
     def updates(count: int) -> None:
         threads.add(threading.current_thread().name)
         overlapped.append(reached.wait(timeout=5.0))
         sac_updates(count)
 
-    trainer._sac_updates = updates
-    step_batch = trainer._step_batch
+    trainer.sac_updates = updates
+    step_batch = runner.steps
 
-    def batch(episodes):  # (each batch starts with the loop's thread not yet at the scoring)
+    def batch(count: int):  # (each batch starts with the loop's thread not yet at the scoring)
         reached.clear()
-        return step_batch(episodes)
+        return step_batch(count)
 
-    trainer._step_batch = batch
+    runner.steps = batch
     try:
-        assert trainer.train() == Outcome.FINISHED
+        assert train(runner) == Outcome.FINISHED
     finally:
-        trainer.close()
+        runner.close()
     assert (
         threads
         and threading.current_thread().name not in threads
@@ -691,8 +700,9 @@ def test_an_epochs_classifier_trains_on_the_update_thread_while_the_evaluation_r
     settings, store, goal_set_id = setup
     config = tiny_config(algorithm="vice_raq", total_steps=100, classifier_steps=3, eval_episodes=1)
     run_id = create_run(store, goal_set_id, config)
-    trainer = _claimed_trainer(store, settings, run_id, config, goal_set_id)
-    assert trainer.classifier_beside_evaluation
+    runner = _claimed_runner(store, settings, run_id, config, goal_set_id)
+    trainer = runner.trainer
+    assert trainer.classifier_thread is runner.update_thread is not None
     model = trainer.reward_model
     classifier_began, evaluation_began = threading.Event(), threading.Event()
     met: list[tuple[str, bool]] = []  # (thread, whether the other had begun) at step 100
@@ -726,9 +736,9 @@ def test_an_epochs_classifier_trains_on_the_update_thread_while_the_evaluation_r
 
     trainer.evaluator.record = record_with_version
     try:
-        assert trainer.train() == Outcome.FINISHED
+        assert train(runner) == Outcome.FINISHED
     finally:
-        trainer.close()
+        runner.close()
     classifier_threads = {name for name, _ in met if name != threading.current_thread().name}
     assert len(met) == 3 + 25 and all(other_began for _, other_began in met)  # 3 f_psi steps, 25 env steps
     assert len(classifier_threads) == 1 and classifier_threads.pop().startswith("sac-updates")

@@ -21,6 +21,7 @@ from contract.settings import Settings
 from contract.store import NotFound, RunStatus, Store
 from learner.actor import ActorState
 from learner.actor_link import decode_message, encode_message
+from learner.actor_messages import Transition
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -46,12 +47,15 @@ def test_messages_keep_their_images_arrays_and_info_through_the_database() -> No
     observation = np.random.default_rng(0).integers(0, 256, (16, 16, 3), dtype=np.uint8)
     display = np.full((32, 32, 3), 7, dtype=np.uint8)
     action = np.array([0.25, -1.0], dtype=np.float32)
-    message = ("step", action, observation, 0.5, False, True, {"success": 1.0, "pos": np.zeros(2)}, display, 0.2)
+    message = Transition(action, observation, 0.5, False, True, {"success": 1.0, "pos": np.zeros(2)}, display, 0.2, 3)
     kind, payload, observation_png, display_png = encode_message(message)
     decoded = decode_message(kind, payload, observation_png, display_png)
-    assert decoded[0] == "step" and decoded[3:7] == (0.5, False, True, {"success": 1.0, "pos": [0.0, 0.0]})
-    assert np.array_equal(decoded[1], action) and decoded[1].dtype == np.float32
-    assert np.array_equal(decoded[2], observation) and np.array_equal(decoded[7], display)
+    assert isinstance(decoded, Transition) and kind == "step"
+    assert (decoded.reward, decoded.terminated, decoded.truncated) == (0.5, False, True)
+    assert decoded.info == {"success": 1.0, "pos": [0.0, 0.0]}
+    assert (decoded.period, decoded.evaluation_round) == (0.2, 3)
+    assert np.array_equal(decoded.action, action) and decoded.action.dtype == np.float32
+    assert np.array_equal(decoded.observation, observation) and np.array_equal(decoded.display, display)
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])

@@ -1,0 +1,132 @@
+"""The real-time runner: a robot (or any env given a control_hz) steps at its own rate in an actor that never
+waits for the learner; the learner takes the actor's steps as they come and runs SAC updates while none waits.
+
+The actor runs in a process beside the learner (learner/actor.py) or, with remote_actor, on the robot's host
+(`raq actor`, linked through the database and the checkpoint store: learner/actor_link.py); both give the
+`ActorHandle` of learner/actor_messages.py. There are no evaluation envs: a robot is not opened twice. A person's
+Evaluate now episodes run on the robot itself and are asked about (learner/robot_evaluation.py).
+"""
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from contract.config import TrainConfig
+from contract.envs import control_rate
+from contract.store import Store
+from learner.actor import ActorProcess, ActorSettings
+from learner.actor_link import RemoteActor
+from learner.actor_messages import ActorHandle, EpisodeStart, StateChange, Transition
+from learner.robot_evaluation import RobotEvaluation
+from learner.run_control import RunControl
+from learner.trainer import EnvEpisode, EnvStep, Trainer
+
+REAL_TIME_SLICE = 0.5
+"""Seconds the loop waits for the actor's next step before it looks at its controls again."""
+ACTOR_POLL_SECONDS = 0.02
+"""How long one wait for the actor's next message lasts once the updates are as many as allowed."""
+
+
+def runs_in_real_time(config: TrainConfig) -> bool:
+    """The run's env steps in real time: a robot env, one given a control_hz, or an actor on another host."""
+    return config.remote_actor or control_rate(config.env_id, config.control_hz) > 0
+
+
+class RealTimeRunner:
+    """Takes the actor's steps and fits the SAC updates between them; owns the actor."""
+
+    def __init__(
+        self, config: TrainConfig, *, store: Store, control: RunControl, goal_set_id: int | None,
+        checkpoint_file: Path | str,
+    ) -> None:  # fmt: skip
+        execution = config.execution
+        self.actor: ActorHandle
+        if execution.remote_actor:  # on the robot's host: the env is neither made nor imported here
+            self.actor = RemoteActor(
+                store, run_id=control.run_id, checkpoint_file=str(checkpoint_file), heartbeat=control.tick
+            )
+        else:
+            self.actor = ActorProcess(ActorSettings(
+                config.to_dict(), run_id=control.run_id, database_url=store.url,
+                control_hz=control_rate(config.env_id, execution.control_hz),
+                person_reset=execution.reset_every_episode,
+            ))  # fmt: skip
+        self.episode = EnvEpisode(self.actor)
+        self.trainer = trainer = Trainer(
+            config, store=store, control=control, goal_set_id=goal_set_id, checkpoint_file=checkpoint_file,
+            episodes=[self.episode], eval_envs=[],
+        )  # fmt: skip
+        # a person's Evaluate now episodes, their last frames asked about outside the query budget
+        self.evaluation = RobotEvaluation(
+            config.task, config.evaluation, store=store, run_id=control.run_id, reward_model=trainer.reward_model,
+            counters=trainer.counters, control=control, reads_answers=trainer.queries is None,
+        )  # fmt: skip
+        if trainer.queries is not None:
+            trainer.queries.on_answers = self.evaluation.answers_read
+        self.policy_sync_seconds, self.initial_random_steps = execution.policy_sync_seconds, config.initial_random_steps
+        self.policy_sent_at = -np.inf
+        self.periods: list[float] = []
+        trainer.metric_sources.append(self._period_metrics)
+
+    def start(self, *, resumed: bool) -> None:
+        """The actor may begin: it resets the scene itself (a person first, when needed)."""
+        self.actor.start(self.trainer.counters.step)
+        self.begin_episode(self.episode)
+
+    def begin_episode(self, episode: EnvEpisode) -> None:
+        """The actor begins the next episode itself; its first observation is a message `steps` takes."""
+        episode.length = -1  # (no episode until that message)
+
+    def steps(self, count: int) -> list[EnvStep]:
+        """The actor's next step, and SAC updates while none is waiting (at most updates_per_step for each step
+        taken; fewer when the updates are slower than the robot); the policy sent every policy_sync_seconds. An
+        episode's first observation is taken on the way. Nothing after REAL_TIME_SLICE seconds without a step (a
+        person resetting, a stopped robot), so that the loop sees its stop and interrupt meanwhile."""
+        trainer, episode = self.trainer, self.episode
+        deadline = time.monotonic() + REAL_TIME_SLICE
+        while True:
+            self._send_policy()
+            message = self.actor.next_message(0.0)  # the actor's steps first: the replay never lags the robot
+            if message is None and trainer.counters.total_updates < trainer.updates_due_by(trainer.counters.step):
+                trainer.sac_updates(1)
+                continue
+            if message is None:
+                message = self.actor.next_message(ACTOR_POLL_SECONDS)
+            if message is None:
+                if time.monotonic() >= deadline:
+                    trainer.control.tick()
+                    return []
+            elif isinstance(message, EpisodeStart):
+                trainer.start_episode(episode, message.observation, message.info)
+                self.evaluation.episode_began()
+            elif isinstance(message, StateChange):
+                trainer.control.event(f"robot: {message.state}")
+            elif isinstance(message, Transition) and episode.length >= 0:  # a step of the episode under way
+                if message.period is not None:
+                    self.periods.append(message.period)
+                self.evaluation.take_step(message, env_step=trainer.counters.step + 1)
+                return [EnvStep(episode, np.asarray(message.action, dtype=np.float32), message.outcome())]
+
+    def _send_policy(self) -> None:
+        """pi's weights to the actor, every policy_sync_seconds once the warm-up is over."""
+        now = time.monotonic()
+        warming_up = self.trainer.counters.step < self.initial_random_steps
+        if warming_up or now - self.policy_sent_at < self.policy_sync_seconds:
+            return
+        modules = self.trainer.policy_state()["agent"]
+        self.actor.send_policy({name: {key: value.detach().cpu() for key, value in state.items()}
+                                for name, state in modules.items()})  # fmt: skip
+        self.policy_sent_at = now
+
+    def _period_metrics(self) -> dict[str, float]:
+        """The actor's control period as it kept it since the last record."""
+        if not self.periods:
+            return {}
+        periods = np.asarray(self.periods) * 1000.0
+        self.periods.clear()
+        return {"actor/period_ms_mean": float(periods.mean()), "actor/period_ms_p99": float(np.percentile(periods, 99)),
+                "actor/period_ms_max": float(periods.max())}  # fmt: skip
+
+    def close(self) -> None:
+        self.actor.close()
