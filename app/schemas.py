@@ -6,6 +6,7 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
+from contract.effort import ANSWER_CAP_SECONDS, RESET_CAP_SECONDS
 from contract.store import INT32_MAX, Run, RunPhase, RunStatus, seconds_since
 from contract.store.robots import EVALUATION_EPISODES_MAX, ROBOT_LIVE_SECONDS
 
@@ -354,9 +355,27 @@ def next_query_step(run: Run, *, asked: int) -> int | None:
     return following if not run.total_steps or following <= run.total_steps else None
 
 
+class EffortOut(BaseModel):
+    """What the run has cost the person so far (contract.effort)."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    answers: int = Field(description="Answers given.")
+    answer_seconds: float = Field(
+        description="Time spent answering: from a page first showing each question to its answer, each capped at "
+        f"{ANSWER_CAP_SECONDS:g} s (an answer given through the API without a page counts none)."
+    )
+    resets: int = Field(description="Scene resets done (Ready pressed).")
+    reset_wait_seconds: float = Field(description="How long the robot waited for those resets, in all.")
+    person_minutes: float = Field(
+        description=f"The person's minutes in all: answering, plus each reset's wait capped at {RESET_CAP_SECONDS:g} s."
+    )
+
+
 class RunDetail(RunOut):  # as RunOut, with config=run.config_values() and latest_rollout=the rollout row (or None)
     config: dict[str, Any]
     latest_rollout: RolloutOut | None
+    effort: EffortOut = Field(description="What the run has cost the person so far.")
 
 
 # ---------------------------------------------------------------- queries

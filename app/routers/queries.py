@@ -54,6 +54,8 @@ def _queue_item(store: Store, run_id: int | None) -> QueueItem:
     if run_id is not None:
         store.get_run(run_id=run_id)
     query = store.next_pending_query(run_id=run_id)
+    if query is not None:  # a page shows it now: the person's answering time counts from here
+        store.mark_query_shown(query_id=query.id)
     # the badge counts the questions of live runs (queued, starting, training); the all-runs queue shows theirs
     # first and those of stopped, finished or failed runs after them, so its count includes those
     pending_all_runs = store.count_queries(status=QueryStatus.PENDING, live_runs=True)

@@ -24,6 +24,7 @@ from app.schemas import (
 from contract.algorithms import ALGORITHM_SPECS
 from contract.checkpoint_location import is_remote, run_folder
 from contract.config import TrainConfig, host_memory_bytes
+from contract.effort import run_effort
 from contract.settings import Settings
 from contract.store import NotFound, Run, Store
 
@@ -52,7 +53,10 @@ def _run_values(store: Store, run: Run, waiting: dict[int, str] | None = None) -
 
 
 def run_detail(store: Store, run: Run) -> RunDetail:
-    values = {**_run_values(store, run), "latest_rollout": store.latest_rollout(run_id=run.id)}
+    values = {
+        **_run_values(store, run), "latest_rollout": store.latest_rollout(run_id=run.id),
+        "effort": run_effort(store, run.id),
+    }  # fmt: skip
     config = run.config_values()
     return RunDetail.model_validate(row_with(run, **values, config=config), from_attributes=True)
 

@@ -180,6 +180,8 @@ class Query(Base):
     answer: Mapped[bool | None] = mapped_column(Boolean)
     labeler: Mapped[str | None] = mapped_column(String(200))
     answered_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    # When a page was first served the question (GET /api/queries/next): the person's answering time counts from it.
+    shown_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
     # Increases with every answer in the whole store: the learner asks for answers "since" a value of it.
     answer_seq: Mapped[int | None] = mapped_column(BigInteger, unique=True)
     # Set when the learner has taken the answer into its classifier; after that it cannot be undone.
@@ -261,6 +263,17 @@ class LoginSession(Base):
     client: Mapped[str] = mapped_column(String(200), default="")
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     expires_at: Mapped[datetime] = mapped_column(UTCDateTime, index=True)
+
+
+class SceneReset(Base):
+    """One scene reset the actor asked a person for: when it asked, and when the person pressed Ready."""
+
+    __tablename__ = "scene_resets"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
+    requested_at: Mapped[datetime] = mapped_column(UTCDateTime)
+    ready_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
 
 
 class RobotControl(Base):

@@ -5,6 +5,7 @@ under the write lock on SQLite; skipping and undoing are compare-and-sets, all r
 """
 
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 from sqlalchemy import bindparam, func, insert, select, text, update
@@ -139,6 +140,25 @@ class QueryStore(StoreBase):
 
     def pending_queries(self, *, run_id: int | None = None, limit: int = 200) -> list[Query]:
         return self.list_queries(run_id=run_id, status=QueryStatus.PENDING, limit=limit, oldest_first=True)
+
+    def mark_query_shown(self, *, query_id: int) -> None:
+        """A page was served the question to show: its shown_at is stamped the first time only (the person's
+        answering time counts from it; by the web server's clock, as answered_at is)."""
+        with self.writing() as session:
+            session.execute(
+                update(Query).where(Query.id == query_id, Query.shown_at.is_(None)).values(shown_at=utcnow())
+            )
+
+    def answer_times(self, *, run_id: int) -> list[tuple[datetime | None, datetime]]:
+        """(shown_at, answered_at) of each answered question of the run, oldest first (shown_at None: no page
+        was served it, as with an automated labeller's answers)."""
+        with self.reading() as session:
+            rows = session.execute(
+                select(Query.shown_at, Query.answered_at)
+                .where(Query.run_id == run_id, Query.status == QueryStatus.ANSWERED, Query.answered_at.is_not(None))
+                .order_by(Query.id)
+            ).all()
+        return [(shown_at, answered_at) for shown_at, answered_at in rows]
 
     def next_pending_query(self, *, run_id: int | None = None) -> Query | None:
         """The oldest pending query of one run; of all runs, the oldest of the live runs (queued, starting,

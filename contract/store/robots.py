@@ -17,7 +17,7 @@ from sqlalchemy.orm import Session
 
 from contract.store.base import StoreBase, found
 from contract.store.errors import Conflict, InvalidInput
-from contract.store.models import Event, RobotControl, Run, RunStatus
+from contract.store.models import Event, RobotControl, Run, RunStatus, SceneReset
 
 ROBOT_SEEN_SECONDS = 30.0
 """robot_runs lists the active runs whose actor reported within this many seconds."""
@@ -122,9 +122,16 @@ class RobotStore(StoreBase):
         return self._switch_stop(run_id=run_id, stop=False)
 
     def request_scene_reset(self, *, run_id: int) -> RobotStatus:
-        """The actor's call: a person must reset the scene now (the actor waits until scene_ready)."""
+        """The actor's call: a person must reset the scene now (the actor waits until scene_ready). The reset is
+        recorded with when it was asked for (once while one waits)."""
         with self.writing() as session:
-            return self._update_or_create(session, run_id=run_id, values={"reset_needed": True})
+            status = self._update_or_create(session, run_id=run_id, values={"reset_needed": True})
+            waiting = session.scalar(
+                select(SceneReset.id).where(SceneReset.run_id == run_id, SceneReset.ready_at.is_(None)).limit(1)
+            )
+            if waiting is None:
+                session.add(SceneReset(run_id=run_id, requested_at=self._db_now()))
+            return status
 
     def scene_ready(self, *, run_id: int) -> RobotStatus:
         """A person's Ready: the scene is reset, the actor may start its episode (reset_count counts these).
@@ -137,7 +144,23 @@ class RobotStore(StoreBase):
             if status is None:
                 self._controls_row(session, run_id=run_id, create=False)  # NotFound for an unknown run
                 raise Conflict("no reset is waiting")
+            session.execute(
+                update(SceneReset)
+                .where(SceneReset.run_id == run_id, SceneReset.ready_at.is_(None))
+                .values(ready_at=self._db_now())
+            )
             return status
+
+    def scene_reset_times(self, *, run_id: int) -> list[tuple[datetime, datetime | None]]:
+        """(requested_at, ready_at) of each scene reset the run's actor asked for, oldest first (ready_at None:
+        still waiting)."""
+        with self.reading() as session:
+            rows = session.execute(
+                select(SceneReset.requested_at, SceneReset.ready_at)
+                .where(SceneReset.run_id == run_id)
+                .order_by(SceneReset.id)
+            ).all()
+        return [(requested_at, ready_at) for requested_at, ready_at in rows]
 
     def request_evaluation(self, *, run_id: int, episodes: int) -> RobotStatus:
         """A person's Evaluate now: the actor runs the next `episodes` episodes with the policy's mean action, as
