@@ -120,6 +120,22 @@ function renderRun(run) {
     if (rollout.episode_return !== null) parts.push(`return ${fmtNumber(rollout.episode_return, 1)}`);
     document.getElementById("rollout-caption").textContent = parts.join(" · ");
   }
+  renderEffort(run.effort);
+}
+
+/** What the run has cost the person so far (the run's `effort`): answers and the time spent answering, resets and
+ * the robot's wait for them, the person's minutes in all. */
+function renderEffort(effort) {
+  if (!effort) return;
+  const minutes = (seconds) => `${(seconds / 60).toFixed(1)} min`;
+  const parts = [
+    `${effort.answers} answer${effort.answers === 1 ? "" : "s"} (${minutes(effort.answer_seconds)} answering)`,
+    `${effort.resets} reset${effort.resets === 1 ? "" : "s"} (the robot waited ${minutes(effort.reset_wait_seconds)})`,
+    `${effort.person_minutes.toFixed(1)} person-minutes in all`,
+  ];
+  const text = document.getElementById("effort-text");
+  text.textContent = parts.join(" · ");
+  text.classList.toggle("muted", effort.answers === 0 && effort.resets === 0);
 }
 
 /** The run's robot, as a list of none or one for RobotCards: while the run is active and its actor reported lately. */

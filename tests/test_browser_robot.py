@@ -130,6 +130,9 @@ def test_the_run_page_shows_the_robot_and_keys_wait_while_typing(desktop: Page, 
     page.keyboard.press("r")
     expect(card.locator(".robot-reset")).to_be_hidden()
     assert store.robot_status(run_id=run_id).reset_count == 1
+    # the reset is counted in what the run cost the person
+    expect(page.locator("#effort-text")).to_contain_text("0 answers (0.0 min answering) · 1 reset (the robot waited")
+    expect(page.locator("#effort-text")).to_contain_text("person-minutes in all")
 
     _stop_with_x_then_resume(page, card, store, run_id)
     assert problems == [], problems
