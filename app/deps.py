@@ -2,11 +2,13 @@
 
 import hashlib
 import hmac
+import re
 import secrets
 from typing import Annotated
 from urllib.parse import urlsplit
 
 from fastapi import Depends, HTTPException, Path, Request, status
+from pydantic import BeforeValidator
 from starlette.concurrency import run_in_threadpool
 
 from contract.settings import Settings
@@ -29,12 +31,33 @@ async def get_store(request: Request) -> Store:
 SettingsDep = Annotated[Settings, Depends(get_app_settings)]
 StoreDep = Annotated[Store, Depends(get_store)]
 
-# Ids in paths, bounded to their INTEGER column's range (32-bit on PostgreSQL): a larger one is 422, never
-# an overflow inside the database driver.
-RunId = Annotated[int, Path(ge=1, le=INT32_MAX, description="A run's id.")]
-GoalSetId = Annotated[int, Path(ge=1, le=INT32_MAX, description="A goal set's id.")]
-GoalExampleId = Annotated[int, Path(ge=1, le=INT32_MAX, description="A goal example's id.")]
-QueryId = Annotated[int, Path(ge=1, le=INT32_MAX, description="A query's id.")]
+
+def _digits_only(value: object) -> object:
+    """A path's id as written: ASCII digits and nothing else (" 1", "+1", "1_0" or "١" are not run 1)."""
+    if isinstance(value, str) and not re.fullmatch(r"[0-9]+", value):
+        raise ValueError("must be a whole number written in the digits 0-9 only")
+    return value
+
+
+def _true_or_false(value: object) -> object:
+    """A query string's boolean: "true" or "false" only (not 0, 1, "yes", "off", …)."""
+    if isinstance(value, str):
+        if value not in ("true", "false"):
+            raise ValueError("must be true or false")
+        return value == "true"
+    return value
+
+
+# Ids in paths: digits only, bounded to their INTEGER column's range (32-bit on PostgreSQL): a larger one is 422,
+# never an overflow inside the database driver.
+RunId = Annotated[int, Path(ge=1, le=INT32_MAX, description="A run's id."), BeforeValidator(_digits_only)]
+GoalSetId = Annotated[int, Path(ge=1, le=INT32_MAX, description="A goal set's id."), BeforeValidator(_digits_only)]
+GoalExampleId = Annotated[
+    int, Path(ge=1, le=INT32_MAX, description="A goal example's id."), BeforeValidator(_digits_only)
+]
+QueryId = Annotated[int, Path(ge=1, le=INT32_MAX, description="A query's id."), BeforeValidator(_digits_only)]
+QueryBool = Annotated[bool, BeforeValidator(_true_or_false)]
+"""A boolean query parameter (with Query(...) beside it): only the words true and false."""
 
 
 def token_fingerprint(token: str) -> str:
@@ -139,6 +162,21 @@ async def require_same_origin(request: Request) -> None:
         raise HTTPException(status_code=status.HTTP_403_FORBIDDEN, detail=CROSS_SITE_DETAIL.format(reason=reason))
 
 
+CROSS_SITE_READ_DETAIL = (
+    "refused a read sent from another web site's page (Sec-Fetch-Site: cross-site): previews, images and exports "
+    "are served to this server's own pages and to programs (curl, httpx, raq oracle) only"
+)
+
+
+async def require_same_site_read(request: Request) -> None:
+    """403 for an expensive read (a preview, an image, an export) that a browser sent from another site's page,
+    say as an <img> tag: such a page could make this server render and hold frames for it. Browsers label the
+    request Sec-Fetch-Site: cross-site; this server's own pages send same-origin, a typed address none, and curl
+    or httpx no such header at all, and those pass."""
+    if request.headers.get("sec-fetch-site", "").strip().lower() == "cross-site":
+        raise HTTPException(status_code=status.HTTP_403_FORBIDDEN, detail=CROSS_SITE_READ_DETAIL)
+
+
 UNAUTHORISED_DETAIL = "this server needs a token: send 'Authorization: Bearer <token>' or log in at /login"
 
 
@@ -165,3 +203,4 @@ async def require_write_access(request: Request, settings: SettingsDep, store: S
 ReadAuth = Annotated[None, Depends(require_read_access)]
 WriteAuth = Annotated[None, Depends(require_write_access)]
 SameOrigin = Annotated[None, Depends(require_same_origin)]
+SameSiteRead = Annotated[None, Depends(require_same_site_read)]

@@ -7,13 +7,17 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
-from fastapi import FastAPI, Request
+from fastapi import FastAPI, Request, Response, status
 from fastapi.encoders import jsonable_encoder
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import SQLAlchemyError
+from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.trustedhost import TrustedHostMiddleware
+from starlette.routing import Match
+from starlette.types import Scope
 
 from app.camera import close_cameras
 from app.database_outage import database_error_response
@@ -60,6 +64,20 @@ def json_safe(value: Any) -> Any:
     return value
 
 
+HTTP_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE")
+
+
+def allowed_methods(app: FastAPI, scope: Scope) -> list[str]:
+    """Every method that some route takes at this request's path (asked of the app's own routing, one method at a
+    time)."""
+    allowed = []
+    for method in HTTP_METHODS:
+        asked = {**scope, "method": method}
+        if any(route.matches(asked)[0] == Match.FULL for route in app.router.routes):
+            allowed.append(method)
+    return allowed
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """One app with one Store, opened here and closed at shutdown. Migrations are applied by the CLI."""
     settings = settings or get_settings()
@@ -98,6 +116,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         (Python's json reads them) or a lone surrogate ("\\ud800"), which the response cannot carry back (FastAPI's
         own handler failed with a 500)."""
         return JSONResponse(status_code=422, content={"detail": json_safe(jsonable_encoder(error.errors()))})
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(request: Request, error: StarletteHTTPException) -> Response:
+        """FastAPI's own answer, except that a 405's Allow names every method of the path (Starlette names only those
+        of the first route whose path matched, so /api/runs/1 said "GET" where it also takes PATCH and DELETE)."""
+        if error.status_code == status.HTTP_405_METHOD_NOT_ALLOWED:
+            error.headers = {**(error.headers or {}), "Allow": ", ".join(allowed_methods(app, request.scope))}
+        return await http_exception_handler(request, error)
 
     @app.exception_handler(NotFound)
     async def _not_found(_request: Request, error: NotFound) -> JSONResponse:

@@ -23,9 +23,11 @@ Text = Annotated[str, AfterValidator(_storable_text)]
 
 
 class InputModel(BaseModel):
-    """A request body: unknown fields are refused (422 naming them), floats must be finite."""
+    """A request body: unknown fields are refused (422 naming them), floats must be finite, and every value must
+    have its field's JSON type (strict: a count is a JSON integer, so true, "5" or 5.0 is 422; a boolean is true or
+    false, so 0 or "yes" is 422)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 class ErrorOut(BaseModel):
@@ -38,7 +40,8 @@ ERROR_DESCRIPTIONS: dict[int, str] = {
     400: "A malformed request: an invalid Content-Length, a body that cannot be parsed, an upload that is not a "
     "usable image, a blank name",
     401: "RAQ_API_TOKEN is set and the request carries neither the bearer token nor a login session",
-    403: "A change sent by a page of another web site (CSRF, DNS rebinding)",
+    403: "Sent by a page of another web site: a change (CSRF, DNS rebinding), or an expensive read (a preview, an "
+    "image, an export) such a page asked for",
     404: "Not found",
     409: "Conflicts with the current state",
     413: "The request body is larger than this route accepts (refused before it is read)",

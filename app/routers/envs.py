@@ -3,14 +3,16 @@ one (the observation as the model sees it and the display render), made with gym
 and only for an env id the allowlist permits (RAQ_ENV_MODULES, see README Security)."""
 
 import threading
+from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from typing import Annotated, Literal
 from urllib.parse import urlencode
 
 from fastapi import APIRouter, HTTPException, Query, Response
-from pydantic import BaseModel
+from pydantic import AfterValidator, BaseModel
 
-from app.deps import ReadAuth, SettingsDep
+from app.deps import ReadAuth, SameSiteRead, SettingsDep
 from app.schemas import errors
 from contract.envs import (
     SIM_ENV_IDS,
@@ -23,7 +25,13 @@ from contract.envs import (
 from contract.settings import Settings
 
 router = APIRouter(prefix="/api/envs", tags=["envs"], responses=errors(401))
-_preview_lock = threading.Lock()  # one env made at a time: rendering contexts are not free
+
+PREVIEW_SIZES = (16, 24, 32, 40, 48, 56, 64, 72, 80, 84, 96, 112, 128, 160, 192, 224, 256)
+"""The model image sizes a preview is made at: a bounded set, so that callers cannot make the server build and keep
+one env per size they invent."""
+PREVIEW_CACHE_ENTRIES = 24
+"""First frames kept (a few KB of PNG each); the least recently used goes first."""
+DISPLAY_SIZE = 256
 
 
 class TaskSettingsOut(BaseModel):
@@ -65,14 +73,55 @@ def task_settings_out() -> dict[str, TaskSettingsOut]:
     }
 
 
-@lru_cache(maxsize=32)
-def _frames(env_id: str, image_size: int, display_size: int) -> tuple[bytes, bytes, str]:
-    with _preview_lock:
-        return first_frames(env_id, image_size=image_size, display_size=display_size)
+class FirstFrames:
+    """A bounded cache of first frames by (env id, size). Every env is made on one thread of its own, one at a time:
+    a rendering context (EGL, OSMesa) stays with the thread that made it, so envs made on the request threads kept
+    about 12 MB each of up to 40 threads. Callers who wait while frames are made get the one result: 80 callers at
+    once make each env once, not 80 times."""
+
+    def __init__(self, entries: int) -> None:
+        self.entries = entries
+        self._made: OrderedDict[tuple[str, int], tuple[bytes, bytes, str]] = OrderedDict()
+        self._lock = threading.Lock()
+        self._maker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="env-preview")
+
+    def get(self, env_id: str, size: int) -> tuple[bytes, bytes, str]:
+        key = (env_id, size)
+        with self._lock:
+            if key in self._made:
+                self._made.move_to_end(key)
+                return self._made[key]
+            made = self._maker.submit(first_frames, env_id, image_size=size, display_size=DISPLAY_SIZE)
+            frames = made.result()  # (an error is raised here, and not kept)
+            self._made[key] = frames
+            while len(self._made) > self.entries:
+                self._made.popitem(last=False)
+            return frames
+
+
+_first_frames = FirstFrames(PREVIEW_CACHE_ENTRIES)
+
+
+def preview_size(size: int) -> int:
+    """The listed preview size nearest to a run's image size (its env is checked at that size)."""
+    return min(PREVIEW_SIZES, key=lambda listed: (abs(listed - size), listed))
+
+
+def _listed_size(size: int) -> int:
+    if size not in PREVIEW_SIZES:
+        raise ValueError(f"must be one of {', '.join(map(str, PREVIEW_SIZES))}")
+    return size
 
 
 EnvIdQuery = Annotated[str, Query(min_length=1, max_length=200, description="A registered id or module:EnvId.")]
-SizeQuery = Annotated[int, Query(ge=8, le=512, description="The model's image size.")]
+SizeQuery = Annotated[
+    int,
+    Query(
+        description=f"The model's image size, one of {', '.join(map(str, PREVIEW_SIZES))}.",
+        json_schema_extra={"enum": list(PREVIEW_SIZES)},
+    ),
+    AfterValidator(_listed_size),
+]
 
 
 def _env_error(message: str) -> HTTPException:
@@ -88,7 +137,7 @@ def preview_frames(env_id: str, size: int, settings: Settings) -> tuple[bytes, b
     if problem:
         return problem
     try:
-        return _frames(env_id, size, 256)
+        return _first_frames.get(env_id, preview_size(size))
     except BadObservation as error:
         return str(error)[:500]
     except Exception as error:  # noqa: BLE001 - any failure of the env itself is the user's answer, not a 500
@@ -127,8 +176,10 @@ def _checked_frames(env_id: str, size: int, settings: Settings) -> tuple[bytes, 
     return frames
 
 
-@router.get("/preview", response_model=EnvPreviewOut)
-def preview(env_id: EnvIdQuery, settings: SettingsDep, _auth: ReadAuth, size: SizeQuery = 48) -> EnvPreviewOut:
+@router.get("/preview", response_model=EnvPreviewOut, responses=errors(403))
+def preview(
+    env_id: EnvIdQuery, settings: SettingsDep, _auth: ReadAuth, _same_site: SameSiteRead, size: SizeQuery = 48
+) -> EnvPreviewOut:
     """Make the env, reset it with seed 0 and describe it; the two images are at the URLs given (422 when the id
     is not allowed or the env cannot be made)."""
     _image, _display, description = _checked_frames(env_id, size, settings)
@@ -142,12 +193,13 @@ def preview(env_id: EnvIdQuery, settings: SettingsDep, _auth: ReadAuth, size: Si
 @router.get(
     "/preview/image",
     response_class=Response,
-    responses={200: {"content": {"image/png": {}}, "description": "The first frame."}},
+    responses={200: {"content": {"image/png": {}}, "description": "The first frame."}, **errors(403)},
 )
 def preview_image(
     env_id: EnvIdQuery,
     settings: SettingsDep,
     _auth: ReadAuth,
+    _same_site: SameSiteRead,
     size: SizeQuery = 48,
     kind: Literal["observation", "display"] = "observation",
 ) -> Response:

@@ -7,11 +7,11 @@ import zipfile
 from pathlib import Path
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, HTTPException, Query, Response
+from fastapi import APIRouter, Depends, HTTPException, Query, Response
 from fastapi.responses import FileResponse, StreamingResponse
 from pydantic import BaseModel
 
-from app.deps import ReadAuth, RunId, SettingsDep, StoreDep
+from app.deps import QueryBool, ReadAuth, RunId, SettingsDep, StoreDep, require_same_site_read
 from app.exports import gif_to_avi, metrics_csv, queries_zip, tensorboard_events
 from app.schemas import errors
 from contract.checkpoint_location import (
@@ -25,7 +25,11 @@ from contract.checkpoint_location import (
 )
 from contract.settings import Settings
 
-router = APIRouter(prefix="/api/runs", tags=["exports"], responses=errors(401, 404))
+# every export is refused to another site's page (Sec-Fetch-Site: cross-site): each one reads the whole run
+router = APIRouter(
+    prefix="/api/runs", tags=["exports"], dependencies=[Depends(require_same_site_read)],
+    responses=errors(401, 403, 404),
+)  # fmt: skip
 
 # A run's files (contract/checkpoint_location.py: <RAQ_CHECKPOINT_URL>/run-<id>/): policy.pt holds the actor and
 # its encoder with the run's config; checkpoint.pt everything (replay buffer included).
@@ -188,7 +192,7 @@ def rollout_video(
     run_id: RunId,
     store: StoreDep,
     _auth: ReadAuth,
-    download: Annotated[bool, Query(description="as an attachment")] = True,
+    download: Annotated[QueryBool, Query(description="as an attachment")] = True,
 ) -> Response:
     store.get_run(run_id=run_id)
     rollout = store.latest_rollout(run_id=run_id)

@@ -20,7 +20,7 @@ from app.camera import (
     photo_differences,
     viewpoint_difference,
 )
-from app.deps import GoalExampleId, GoalSetId, ReadAuth, SettingsDep, StoreDep, WriteAuth
+from app.deps import GoalExampleId, GoalSetId, ReadAuth, SameSiteRead, SettingsDep, StoreDep, WriteAuth
 from app.schemas import (
     WRITE_ERRORS,
     CameraFrameInfo,
@@ -199,12 +199,13 @@ def upload_goal_examples(
 @router.get(
     "/api/goal-examples/{example_id}/image",
     response_class=Response,
-    responses={200: {"content": {"image/png": {}, "image/jpeg": {}, "image/webp": {}}}, **errors(404)},
+    responses={200: {"content": {"image/png": {}, "image/jpeg": {}, "image/webp": {}}}, **errors(403, 404)},
 )
 def goal_example_image(
     example_id: GoalExampleId,
     store: StoreDep,
     _auth: ReadAuth,
+    _same_site: SameSiteRead,
     kind: Annotated[Literal["original", "model", "display"], Query()] = "display",
 ) -> Response:
     """original: the upload as sent; model: what the classifier sees; display: the whole photo, max 256 px."""
@@ -324,9 +325,12 @@ def list_cameras(settings: SettingsDep, _auth: ReadAuth) -> CamerasOut:
     responses={
         200: {"content": {"image/png": {}}, "description": "The camera's whole frame, as the robot sees it."},
         **CAMERA_ERRORS,
+        **errors(403),
     },
 )
-def camera_frame(env_id: CameraEnvId, settings: SettingsDep, store: StoreDep, _auth: ReadAuth) -> Response:
+def camera_frame(
+    env_id: CameraEnvId, settings: SettingsDep, store: StoreDep, _auth: ReadAuth, _same_site: SameSiteRead
+) -> Response:
     """The robot camera's current frame (read without resetting the env, at most every 0.2 s; the frame a run's
     live actor on the same env published, when one is). X-Camera-Source: 'camera' or 'run N'."""
     if not is_camera_env(env_id, settings):

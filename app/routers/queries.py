@@ -10,7 +10,7 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Query, Response
 from starlette.concurrency import run_in_threadpool
 
-from app.deps import QueryId, ReadAuth, StoreDep, WriteAuth
+from app.deps import QueryId, ReadAuth, SameSiteRead, StoreDep, WriteAuth
 from app.routers.runs import run_out
 from app.schemas import WRITE_ERRORS, AnswerIn, GoalExampleOut, QueryOut, QueueItem, SkipIn, errors
 from contract.store import INT32_MAX, NotFound, QueryStatus, Store
@@ -94,12 +94,13 @@ async def get_query(query_id: QueryId, store: StoreDep, _auth: ReadAuth) -> Quer
 
 
 @router.get(
-    "/{query_id}/image", response_class=Response, responses={200: {"content": {"image/png": {}}}, **errors(404)}
+    "/{query_id}/image", response_class=Response, responses={200: {"content": {"image/png": {}}}, **errors(403, 404)}
 )
 def query_image(
     query_id: QueryId,
     store: StoreDep,
     _auth: ReadAuth,
+    _same_site: SameSiteRead,
     resolution: Annotated[Literal["model", "display"], Query()] = "display",
 ) -> Response:
     """model: the observation the learner scored (e.g. 48x48); display: the larger render of the same state."""

@@ -4,7 +4,7 @@ for the pages."""
 
 from fastapi import APIRouter, HTTPException, Response
 
-from app.deps import ReadAuth, RunId, StoreDep, WriteAuth
+from app.deps import ReadAuth, RunId, SameSiteRead, StoreDep, WriteAuth
 from app.schemas import WRITE_ERRORS, EvaluateIn, RobotStatusOut, errors, row_with
 from contract.store import NotFound, RobotStatus, Store
 
@@ -62,9 +62,12 @@ def evaluate_now(run_id: RunId, body: EvaluateIn, store: StoreDep, _auth: WriteA
 @run_robot.get(
     "/{run_id}/robot/camera",
     response_class=Response,
-    responses={200: {"content": {"image/png": {}}, "description": "The actor's newest camera frame."}, **errors(404)},
+    responses={
+        200: {"content": {"image/png": {}}, "description": "The actor's newest camera frame."},
+        **errors(403, 404),
+    },
 )
-def robot_camera(run_id: RunId, store: StoreDep, _auth: ReadAuth) -> Response:
+def robot_camera(run_id: RunId, store: StoreDep, _auth: ReadAuth, _same_site: SameSiteRead) -> Response:
     """The actor's newest camera frame (PNG, never cached: each request gets the newest); 404 before the first."""
     frame = store.camera_frame(run_id=run_id)
     if frame is None:

@@ -2,13 +2,16 @@
 latest rollout animation."""
 
 import contextlib
+import dataclasses
+import functools
 import shutil
+import typing
 from typing import Annotated, Any
 
 import pydantic
 from fastapi import APIRouter, HTTPException, Query, Response, status
 
-from app.deps import ReadAuth, RunId, SettingsDep, StoreDep, WriteAuth
+from app.deps import QueryBool, ReadAuth, RunId, SameSiteRead, SettingsDep, StoreDep, WriteAuth
 from app.routers.envs import preview_problem
 from app.schemas import (
     WRITE_ERRORS,
@@ -32,6 +35,29 @@ router = APIRouter(prefix="/api/runs", tags=["runs"], responses=errors(401))
 
 TOP_LEVEL_FIELDS = ("env_id", "algorithm", "seed")
 _config_adapter = pydantic.TypeAdapter(TrainConfig)
+# The paths of one run: its id is digits, so /api/runs/sweep is the sweep's own path (a PATCH there is 405), never
+# a run whose id fails to parse.
+ONE_RUN = "/{run_id:int}"
+
+
+@functools.cache
+def _strict_field_adapters() -> dict[str, pydantic.TypeAdapter[Any]]:
+    """Each TrainConfig field's type, to check a given value strictly: its JSON type, before the bounds."""
+    hints = typing.get_type_hints(TrainConfig)
+    return {field.name: pydantic.TypeAdapter(hints[field.name]) for field in dataclasses.fields(TrainConfig)}
+
+
+def _type_problems(values: dict[str, Any]) -> list[tuple[str, str]]:
+    """(field, message) for every value that is not its field's JSON type: a count given as true or "5", a
+    switch given as 0 (pydantic's lax mode would take them as 1, 5 and false)."""
+    problems = []
+    adapters = _strict_field_adapters()
+    for name, value in values.items():
+        try:
+            adapters[name].validate_python(value, strict=True)
+        except pydantic.ValidationError as error:
+            problems.append((name, error.errors(include_url=False)[0]["msg"]))
+    return problems
 
 
 def run_out(store: Store, run: Run, waiting: dict[int, str] | None = None) -> RunOut:
@@ -81,6 +107,11 @@ def validate_run_config(body: RunCreate, settings: Settings) -> TrainConfig:
     if unknown:
         raise HTTPException(
             status_code=422, detail=[_field_error(location(name), name, "unknown config field") for name in unknown]
+        )
+    mistyped = _type_problems(values)
+    if mistyped:
+        raise HTTPException(
+            status_code=422, detail=[_field_error(location(name), name, message) for name, message in mistyped]
         )
     try:
         config = _config_adapter.validate_python(values)
@@ -217,9 +248,10 @@ def list_runs(
     store: StoreDep,
     _auth: ReadAuth,
     archived: Annotated[
-        bool | None, Query(description="false (default): leave archived runs out; true: only them; omit with all=true")
+        QueryBool | None,
+        Query(description="false (default): leave archived runs out; true: only them; omit with all=true"),
     ] = False,
-    all_runs: Annotated[bool, Query(alias="all", description="every run, archived or not")] = False,
+    all_runs: Annotated[QueryBool, Query(alias="all", description="every run, archived or not")] = False,
 ) -> list[RunOut]:
     return list_run_outs(store, archived=None if all_runs else archived)
 
@@ -229,14 +261,14 @@ def list_run_outs(store: Store, *, archived: bool | None = False) -> list[RunOut
     return [run_out(store, run, waiting) for run in store.list_runs(archived=archived)]
 
 
-@router.patch("/{run_id}", response_model=RunDetail, responses=errors(404, 409, *WRITE_ERRORS))
+@router.patch(ONE_RUN, response_model=RunDetail, responses=errors(404, 409, *WRITE_ERRORS))
 def update_run(run_id: RunId, body: RunUpdate, store: StoreDep, _auth: WriteAuth) -> RunDetail:
     """Change the priority (any time: a queued run moves in the queue, a running one yields at its next checkpoint
     when a higher-priority run waits) or archive a run that is not queued or running (409)."""
     return run_detail(store, store.update_run(run_id=run_id, priority=body.priority, archived=body.archived))
 
 
-@router.delete("/{run_id}", status_code=status.HTTP_204_NO_CONTENT, responses=errors(404, 409, *WRITE_ERRORS))
+@router.delete(ONE_RUN, status_code=status.HTTP_204_NO_CONTENT, responses=errors(404, 409, *WRITE_ERRORS))
 def delete_run(run_id: RunId, store: StoreDep, settings: SettingsDep, _auth: WriteAuth) -> Response:
     """Delete a run with everything it owns: queries (with their images), metrics, events, rollouts and its
     checkpoint files. A run a learner holds (starting, training) must be stopped first (409)."""
@@ -254,7 +286,7 @@ def delete_run(run_id: RunId, store: StoreDep, settings: SettingsDep, _auth: Wri
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
-@router.get("/{run_id}", response_model=RunDetail, responses=errors(404))
+@router.get(ONE_RUN, response_model=RunDetail, responses=errors(404))
 def get_run(run_id: RunId, store: StoreDep, _auth: ReadAuth) -> RunDetail:
     return run_detail(store, store.get_run(run_id=run_id))
 
@@ -284,10 +316,10 @@ def continue_run(run_id: RunId, body: RunContinue, store: StoreDep, _auth: Write
     response_class=Response,
     responses={
         200: {"content": {"image/gif": {}}, "description": "The latest evaluation rollout animation."},
-        **errors(404),
+        **errors(403, 404),
     },
 )
-def latest_rollout(run_id: RunId, store: StoreDep, _auth: ReadAuth) -> Response:
+def latest_rollout(run_id: RunId, store: StoreDep, _auth: ReadAuth, _same_site: SameSiteRead) -> Response:
     store.get_run(run_id=run_id)
     rollout = store.latest_rollout(run_id=run_id)
     if rollout is None:
