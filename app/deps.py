@@ -1,4 +1,5 @@
-"""FastAPI dependencies as Annotated aliases: the settings, the store, authorisation; and the login sessions."""
+"""FastAPI dependencies as Annotated aliases: the settings, the store, ids in paths and booleans in query strings as
+written, authorisation, the cross-site checks of writes and expensive reads; and the login sessions."""
 
 import hashlib
 import hmac

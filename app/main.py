@@ -1,4 +1,5 @@
-"""The web app: REST API under /api, HTML pages, static files. `create_app` is uvicorn's factory."""
+"""The web app: REST API under /api, HTML pages, static files, and the answers to errors (a database away is a JSON
+503, a 405 names every method of its path). `create_app` is uvicorn's factory."""
 
 import gc
 import math

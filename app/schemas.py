@@ -525,3 +525,24 @@ class EvaluateIn(InputModel):
         ge=1, le=EVALUATION_EPISODES_MAX,
         description="How many episodes; the last frame of each becomes a question on the answer queue.",
     )  # fmt: skip
+
+
+# ---------------------------------------------------------------- envs and exports
+class TaskSettingsOut(BaseModel):
+    fields: dict[str, int | float]
+    results_page: str
+
+
+class EvaluatedPolicyOut(BaseModel):
+    step: int
+    success_rate: float | None
+    """The evaluation's success rate (None for an env that reports no success)."""
+    evaluated_return: float | None
+    url: str
+
+
+class EvaluatedPoliciesOut(BaseModel):
+    last_eval: EvaluatedPolicyOut | None
+    """The policy the latest evaluation ran."""
+    best: EvaluatedPolicyOut | None
+    """The policy of the highest evaluation success rate so far (then return; an equal score keeps the earlier)."""

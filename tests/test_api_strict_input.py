@@ -12,7 +12,7 @@ import pytest
 from conftest import LiveServer
 from fastapi.testclient import TestClient
 
-from app.routers.envs import PREVIEW_SIZES
+from app.previews import PREVIEW_SIZES
 from contract.store import Store
 
 CROSS_SITE = {"Sec-Fetch-Site": "cross-site"}

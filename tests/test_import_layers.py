@@ -57,3 +57,20 @@ def test_the_check_sees_a_lazy_import_back_up(tmp_path: Path) -> None:
 def test_every_package_is_checked() -> None:
     packages = {path.parent.name for path in ROOT.glob("*/__init__.py")} - {"tests", "bench", "migrations"}
     assert packages == set(ALLOWED)
+
+
+def test_routers_import_no_other_router() -> None:
+    """A router imports the app's dependencies, schemas and shared helpers (app.views, app.previews, …), never
+    another router: what two routers show lives in a helper both import."""
+    problems = []
+    for path in sorted((ROOT / "app" / "routers").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.ImportFrom) and (node.level > 0 or (node.module or "").startswith("app.routers")):
+                problems.append(f"{path.relative_to(ROOT)}:{node.lineno} imports {node.module or '.'}")
+            elif isinstance(node, ast.Import):
+                problems += [
+                    f"{path.relative_to(ROOT)}:{node.lineno} imports {alias.name}"
+                    for alias in node.names
+                    if alias.name.startswith("app.routers")
+                ]
+    assert problems == []

@@ -1,1 +1,3 @@
-"""One router per resource: runs, robots, goal sets, queries, metrics, events, health, and the HTML pages."""
+"""One router per resource: runs, their exports, metrics, events, reward health and robot, comparison, goal sets and
+cameras, queries, envs, the config reference, health, the API docs and the HTML pages. A router imports app.deps,
+app.schemas and shared helpers (app.views, app.previews, …), never another router."""

@@ -7,18 +7,11 @@ from fastapi import APIRouter, HTTPException, Query
 
 from app.deps import ReadAuth, StoreDep
 from app.schemas import CompareGroupOut, CompareOut, errors
+from app.views import COMPARE_METRICS
 from contract.store import INT32_MAX, Store
 
 router = APIRouter(prefix="/api/compare", tags=["compare"], responses=errors(401))
 
-# The metrics a comparison may plot, served to the compare page (not retyped there).
-COMPARE_METRICS = {
-    "eval/success_rate": "Evaluation success rate",
-    "eval/return": "Evaluation return",
-    "eval/classifier_return": "Classifier return Σ fψ",
-    "queries/asked": "Queries asked",
-    "reward/acc_replay": "Classifier accuracy on replay frames",
-}
 MAX_RUNS = 50
 
 

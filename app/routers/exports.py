@@ -2,40 +2,27 @@
 trained policy (the learner's policy file, streamed as it is: no torch here) and the evaluation rollout as a video."""
 
 import io
-import json
 import zipfile
 from pathlib import Path
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Query, Response
 from fastapi.responses import FileResponse, StreamingResponse
-from pydantic import BaseModel
 
 from app.deps import QueryBool, ReadAuth, RunId, SettingsDep, StoreDep, require_same_site_read
 from app.exports import gif_to_avi, metrics_csv, queries_zip, tensorboard_events
-from app.schemas import errors
+from app.schemas import EvaluatedPoliciesOut, errors
+from app.views import EVALUATED_POLICY_FILES, POLICY_FILES, evaluated_policies
 from contract.checkpoint_location import (
-    BEST_POLICY_FILENAME,
-    FILENAME,
-    LAST_EVAL_POLICY_FILENAME,
-    POLICIES_INDEX,
-    POLICY_FILENAME,
     is_remote,
     run_folder,
 )
-from contract.settings import Settings
 
 # every export is refused to another site's page (Sec-Fetch-Site: cross-site): each one reads the whole run
 router = APIRouter(
     prefix="/api/runs", tags=["exports"], dependencies=[Depends(require_same_site_read)],
     responses=errors(401, 403, 404),
 )  # fmt: skip
-
-# A run's files (contract/checkpoint_location.py: <RAQ_CHECKPOINT_URL>/run-<id>/): policy.pt holds the actor and
-# its encoder with the run's config; checkpoint.pt everything (replay buffer included).
-POLICY_FILES = (POLICY_FILENAME, FILENAME)
-# The policies the evaluations judged: the latest evaluation's, and the best-scoring one's (learner/train.py).
-EVALUATED_POLICY_FILES = {"last_eval": LAST_EVAL_POLICY_FILENAME, "best": BEST_POLICY_FILENAME}
 
 
 def _attachment(name: str) -> dict[str, str]:
@@ -118,52 +105,11 @@ def policy(
     )
 
 
-class EvaluatedPolicyOut(BaseModel):
-    step: int
-    success_rate: float | None
-    """The evaluation's success rate (None for an env that reports no success)."""
-    evaluated_return: float | None
-    url: str
-
-
-class EvaluatedPoliciesOut(BaseModel):
-    last_eval: EvaluatedPolicyOut | None
-    """The policy the latest evaluation ran."""
-    best: EvaluatedPolicyOut | None
-    """The policy of the highest evaluation success rate so far (then return; an equal score keeps the earlier)."""
-
-
-def evaluated_policies(settings: Settings, run_id: int) -> EvaluatedPoliciesOut:
-    """The run's evaluated policies with their steps and scores (policies.json beside its checkpoint)."""
-    index = _read_index(run_folder(settings.resolved_checkpoint_url, run_id)) or {}
-    found = {}
-    for which in EVALUATED_POLICY_FILES:
-        entry = index.get(which)
-        if isinstance(entry, dict) and isinstance(entry.get("step"), int):
-            found[which] = EvaluatedPolicyOut(
-                step=entry["step"], success_rate=entry.get("success_rate"), evaluated_return=entry.get("return"),
-                url=f"/api/runs/{run_id}/policy?which={which}",
-            )  # fmt: skip
-    return EvaluatedPoliciesOut(last_eval=found.get("last_eval"), best=found.get("best"))
-
-
 @router.get("/{run_id}/policies", response_model=EvaluatedPoliciesOut)
 def policies(run_id: RunId, store: StoreDep, settings: SettingsDep, _auth: ReadAuth) -> EvaluatedPoliciesOut:
     """The policies the evaluations judged: the latest one's and the best one's, each with its step and score."""
     store.get_run(run_id=run_id)
     return evaluated_policies(settings, run_id)
-
-
-def _read_index(folder: str) -> dict | None:
-    try:
-        if not is_remote(folder):
-            return json.loads((Path(folder) / POLICIES_INDEX).read_bytes())
-        import fsspec
-
-        with fsspec.open(f"{folder}/{POLICIES_INDEX}", "rb") as handle:
-            return json.loads(handle.read())
-    except (FileNotFoundError, ValueError):
-        return None
 
 
 def _run_file(folder: str, run_id: int, name: str) -> FileResponse | StreamingResponse | None:

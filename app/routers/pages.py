@@ -22,11 +22,9 @@ from app.deps import (
     secret_hash,
     token_fingerprint,
 )
-from app.routers.compare import COMPARE_METRICS
-from app.routers.envs import suggested_env_ids, task_settings_out
-from app.routers.exports import evaluated_policies
-from app.routers.runs import list_run_outs, run_detail, run_out
+from app.previews import suggested_env_ids
 from app.schemas import GoalExampleOut, GoalSetOut, row_with
+from app.views import COMPARE_METRICS, evaluated_policies, list_run_outs, run_detail, run_out, task_settings_out
 from contract.algorithms import ALGORITHM_SPECS
 from contract.config import FEWEST_GOAL_IMAGES, REAL_ROBOT_GOAL_IMAGES, TrainConfig, config_reference
 from contract.store import INT32_MAX, NotFound, QueryStatus, RunStatus

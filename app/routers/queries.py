@@ -11,8 +11,8 @@ from fastapi import APIRouter, Query, Response
 from starlette.concurrency import run_in_threadpool
 
 from app.deps import QueryId, ReadAuth, SameSiteRead, StoreDep, WriteAuth
-from app.routers.runs import run_out
 from app.schemas import WRITE_ERRORS, AnswerIn, GoalExampleOut, QueryOut, QueueItem, SkipIn, errors
+from app.views import run_out
 from contract.store import INT32_MAX, NotFound, QueryStatus, Store
 from contract.store import Query as QueryRow
 

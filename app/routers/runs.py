@@ -12,7 +12,7 @@ import pydantic
 from fastapi import APIRouter, HTTPException, Query, Response, status
 
 from app.deps import QueryBool, ReadAuth, RunId, SameSiteRead, SettingsDep, StoreDep, WriteAuth
-from app.routers.envs import preview_problem
+from app.previews import preview_problem
 from app.schemas import (
     WRITE_ERRORS,
     RunContinue,
@@ -22,12 +22,11 @@ from app.schemas import (
     RunUpdate,
     SweepCreate,
     errors,
-    row_with,
 )
+from app.views import list_run_outs, run_detail, run_out
 from contract.algorithms import ALGORITHM_SPECS
 from contract.checkpoint_location import is_remote, run_folder
 from contract.config import TrainConfig, host_memory_bytes
-from contract.effort import run_effort
 from contract.settings import Settings
 from contract.store import NotFound, Run, Store
 
@@ -58,33 +57,6 @@ def _type_problems(values: dict[str, Any]) -> list[tuple[str, str]]:
         except pydantic.ValidationError as error:
             problems.append((name, error.errors(include_url=False)[0]["msg"]))
     return problems
-
-
-def run_out(store: Store, run: Run, waiting: dict[int, str] | None = None) -> RunOut:
-    return RunOut.model_validate(row_with(run, **_run_values(store, run, waiting)), from_attributes=True)
-
-
-def _run_values(store: Store, run: Run, waiting: dict[int, str] | None = None) -> dict[str, Any]:
-    """What RunOut shows beside the run's columns: its query counts, latest metrics, why it waits."""
-    if waiting is None and run.status == "queued":
-        waiting = store.queue_report()
-    return {
-        "queries": store.query_counts(run_id=run.id),
-        "success_rate": store.latest_metric(run_id=run.id, name="eval/success_rate"),
-        "steps_per_second": store.latest_metric(run_id=run.id, name="perf/steps_per_second"),
-        "eta_seconds": store.latest_metric(run_id=run.id, name="perf/eta_seconds"),
-        "waiting_reason": (waiting or {}).get(run.id),
-        "asks_queries": bool(getattr(ALGORITHM_SPECS.get(run.algorithm), "queries", False)),
-    }
-
-
-def run_detail(store: Store, run: Run) -> RunDetail:
-    values = {
-        **_run_values(store, run), "latest_rollout": store.latest_rollout(run_id=run.id),
-        "effort": run_effort(store, run.id),
-    }  # fmt: skip
-    config = run.config_values()
-    return RunDetail.model_validate(row_with(run, **values, config=config), from_attributes=True)
 
 
 def _field_error(location: list[str | int], field: str, message: str) -> dict[str, Any]:
@@ -254,11 +226,6 @@ def list_runs(
     all_runs: Annotated[QueryBool, Query(alias="all", description="every run, archived or not")] = False,
 ) -> list[RunOut]:
     return list_run_outs(store, archived=None if all_runs else archived)
-
-
-def list_run_outs(store: Store, *, archived: bool | None = False) -> list[RunOut]:
-    waiting = store.queue_report()
-    return [run_out(store, run, waiting) for run in store.list_runs(archived=archived)]
 
 
 @router.patch(ONE_RUN, response_model=RunDetail, responses=errors(404, 409, *WRITE_ERRORS))

@@ -1,0 +1,93 @@
+"""Env previews: an env's first frames (the observation as the model sees it and the display render), made with
+gymnasium in this process (no torch), one env at a time on one thread of their own, kept in a bounded cache; and the
+envs the New run form suggests."""
+
+import threading
+from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
+from functools import lru_cache
+
+from contract.envs import BadObservation, env_id_problem, first_frames, module_env_ids
+from contract.settings import Settings
+
+PREVIEW_SIZES = (16, 24, 32, 40, 48, 56, 64, 72, 80, 84, 96, 112, 128, 160, 192, 224, 256)
+"""The model image sizes a preview is made at: a bounded set, so that callers cannot make the server build and keep
+one env per size they invent."""
+PREVIEW_CACHE_ENTRIES = 24
+"""First frames kept (a few KB of PNG each); the least recently used goes first."""
+DISPLAY_SIZE = 256
+
+
+class FirstFrames:
+    """A bounded cache of first frames by (env id, size). Every env is made on one thread of its own, one at a time:
+    a rendering context (EGL, OSMesa) stays with the thread that made it, so envs made on the request threads kept
+    about 12 MB each of up to 40 threads. Callers who wait while frames are made get the one result: 80 callers at
+    once make each env once, not 80 times."""
+
+    def __init__(self, entries: int) -> None:
+        self.entries = entries
+        self._made: OrderedDict[tuple[str, int], tuple[bytes, bytes, str]] = OrderedDict()
+        self._lock = threading.Lock()
+        self._maker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="env-preview")
+
+    def get(self, env_id: str, size: int) -> tuple[bytes, bytes, str]:
+        key = (env_id, size)
+        with self._lock:
+            if key in self._made:
+                self._made.move_to_end(key)
+                return self._made[key]
+            made = self._maker.submit(first_frames, env_id, image_size=size, display_size=DISPLAY_SIZE)
+            frames = made.result()  # (an error is raised here, and not kept)
+            self._made[key] = frames
+            while len(self._made) > self.entries:
+                self._made.popitem(last=False)
+            return frames
+
+
+_first_frames = FirstFrames(PREVIEW_CACHE_ENTRIES)
+
+
+def preview_size(size: int) -> int:
+    """The listed preview size nearest to a run's image size (its env is checked at that size)."""
+    return min(PREVIEW_SIZES, key=lambda listed: (abs(listed - size), listed))
+
+
+def preview_frames(env_id: str, size: int, settings: Settings) -> tuple[bytes, bytes, str] | str:
+    """The env's first frames and description (as the preview shows them), or why a run of it cannot start: an
+    id that is not allowed or registered, an env that cannot be made or reset, or an observation that is not an
+    image (contract.envs.observation_problem: "<env id>: observation has NaN values"). The New run form's preview
+    and run creation both ask this, so a run is created only of an env whose preview works."""
+    problem = env_id_problem(env_id, allowed_modules=settings.env_modules)
+    if problem:
+        return problem
+    try:
+        return _first_frames.get(env_id, preview_size(size))
+    except BadObservation as error:
+        return str(error)[:500]
+    except Exception as error:  # noqa: BLE001 - any failure of the env itself is the user's answer, not a 500
+        return f"cannot make or reset {env_id!r}: {type(error).__name__}: {error}".splitlines()[0][:500]
+
+
+def preview_problem(env_id: str, size: int, settings: Settings) -> str | None:
+    """preview_frames's reason, or None when the env previews fine."""
+    frames = preview_frames(env_id, size, settings)
+    return frames if isinstance(frames, str) else None
+
+
+@lru_cache(maxsize=8)
+def _suggested(modules: tuple[str, ...]) -> tuple[str, ...]:
+    settings = Settings(_env_file=None, env_modules=modules)  # type: ignore[call-arg]
+    found: list[str] = []
+    for module in modules:
+        try:
+            candidates = module_env_ids(module)
+        except Exception:  # noqa: BLE001 - a module that cannot be imported suggests nothing (its ids say why)
+            continue
+        found += [env_id for env_id in candidates if preview_problem(env_id, 48, settings) is None]
+    return tuple(found)
+
+
+def suggested_env_ids(settings: Settings) -> list[str]:
+    """What the New run form suggests besides the simulated tasks: every env the allowed modules register whose
+    preview works (an image observation), as module:EnvId, the one id a learner can make. Found once a process."""
+    return list(_suggested(tuple(settings.env_modules)))

@@ -1,0 +1,103 @@
+"""What more than one router shows: a run as the API and the pages show it, the simulated tasks' settings, the
+metrics a comparison may plot, and a run's evaluated policies. Routers import these, never each other."""
+
+import json
+from pathlib import Path
+from typing import Any
+
+from app.schemas import EvaluatedPoliciesOut, EvaluatedPolicyOut, RunDetail, RunOut, TaskSettingsOut, row_with
+from contract.algorithms import ALGORITHM_SPECS
+from contract.checkpoint_location import (
+    BEST_POLICY_FILENAME,
+    FILENAME,
+    LAST_EVAL_POLICY_FILENAME,
+    POLICIES_INDEX,
+    POLICY_FILENAME,
+    is_remote,
+    run_folder,
+)
+from contract.effort import run_effort
+from contract.envs import SIM_TASK_SETTINGS
+from contract.settings import Settings
+from contract.store import Run, Store
+
+# The metrics a comparison may plot, served to the compare page (not retyped there).
+COMPARE_METRICS = {
+    "eval/success_rate": "Evaluation success rate",
+    "eval/return": "Evaluation return",
+    "eval/classifier_return": "Classifier return Σ fψ",
+    "queries/asked": "Queries asked",
+    "reward/acc_replay": "Classifier accuracy on replay frames",
+}
+
+
+def run_out(store: Store, run: Run, waiting: dict[int, str] | None = None) -> RunOut:
+    return RunOut.model_validate(row_with(run, **_run_values(store, run, waiting)), from_attributes=True)
+
+
+def _run_values(store: Store, run: Run, waiting: dict[int, str] | None = None) -> dict[str, Any]:
+    """What RunOut shows beside the run's columns: its query counts, latest metrics, why it waits."""
+    if waiting is None and run.status == "queued":
+        waiting = store.queue_report()
+    return {
+        "queries": store.query_counts(run_id=run.id),
+        "success_rate": store.latest_metric(run_id=run.id, name="eval/success_rate"),
+        "steps_per_second": store.latest_metric(run_id=run.id, name="perf/steps_per_second"),
+        "eta_seconds": store.latest_metric(run_id=run.id, name="perf/eta_seconds"),
+        "waiting_reason": (waiting or {}).get(run.id),
+        "asks_queries": bool(getattr(ALGORITHM_SPECS.get(run.algorithm), "queries", False)),
+    }
+
+
+def run_detail(store: Store, run: Run) -> RunDetail:
+    values = {
+        **_run_values(store, run), "latest_rollout": store.latest_rollout(run_id=run.id),
+        "effort": run_effort(store, run.id),
+    }  # fmt: skip
+    config = run.config_values()
+    return RunDetail.model_validate(row_with(run, **values, config=config), from_attributes=True)
+
+
+def task_settings_out() -> dict[str, TaskSettingsOut]:
+    """SIM_TASK_SETTINGS as the API and the New run page serve it."""
+    return {
+        env_id: TaskSettingsOut.model_validate(task, from_attributes=True) for env_id, task in SIM_TASK_SETTINGS.items()
+    }
+
+
+# A run's files (contract/checkpoint_location.py: <RAQ_CHECKPOINT_URL>/run-<id>/): policy.pt holds the actor and
+# its encoder with the run's config; checkpoint.pt everything (replay buffer included).
+POLICY_FILES = (POLICY_FILENAME, FILENAME)
+# The policies the evaluations judged: the latest evaluation's, and the best-scoring one's (learner/train.py).
+EVALUATED_POLICY_FILES = {"last_eval": LAST_EVAL_POLICY_FILENAME, "best": BEST_POLICY_FILENAME}
+
+
+def evaluated_policies(settings: Settings, run_id: int) -> EvaluatedPoliciesOut:
+    """The run's evaluated policies with their steps and scores (policies.json beside its checkpoint)."""
+    index = _read_index(run_folder(settings.resolved_checkpoint_url, run_id)) or {}
+    found = {}
+    for which in EVALUATED_POLICY_FILES:
+        entry = index.get(which)
+        if isinstance(entry, dict) and isinstance(entry.get("step"), int):
+            found[which] = EvaluatedPolicyOut(
+                step=entry["step"], success_rate=entry.get("success_rate"), evaluated_return=entry.get("return"),
+                url=f"/api/runs/{run_id}/policy?which={which}",
+            )  # fmt: skip
+    return EvaluatedPoliciesOut(last_eval=found.get("last_eval"), best=found.get("best"))
+
+
+def _read_index(folder: str) -> dict | None:
+    try:
+        if not is_remote(folder):
+            return json.loads((Path(folder) / POLICIES_INDEX).read_bytes())
+        import fsspec
+
+        with fsspec.open(f"{folder}/{POLICIES_INDEX}", "rb") as handle:
+            return json.loads(handle.read())
+    except (FileNotFoundError, ValueError):
+        return None
+
+
+def list_run_outs(store: Store, *, archived: bool | None = False) -> list[RunOut]:
+    waiting = store.queue_report()
+    return [run_out(store, run, waiting) for run in store.list_runs(archived=archived)]
