@@ -6,6 +6,7 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
+from contract.config import TrainConfig
 from contract.effort import ANSWER_CAP_SECONDS, RESET_CAP_SECONDS
 from contract.store import INT32_MAX, Run, RunPhase, RunStatus, seconds_since
 from contract.store.robots import EVALUATION_EPISODES_MAX, ROBOT_LIVE_SECONDS
@@ -347,15 +348,16 @@ class RunOut(RowOut):
 
 
 def next_query_step(run: Run, *, asked: int) -> int | None:
-    """The next multiple of query_every after the run's step, while its query budget lasts and it has not ended."""
-    config = run.config or {}
-    every, budget = int(config.get("query_every") or 0), config.get("query_budget")
-    if every <= 0 or run.status not in (RunStatus.QUEUED, *RunStatus.ACTIVE):
+    """The step after which the learner asks next (QueryConfig.next_query_step, the learner's own rule), while the
+    run has not ended and that step is within its steps."""
+    if run.status not in (RunStatus.QUEUED, *RunStatus.ACTIVE):
         return None
-    if budget is not None and asked >= int(budget):
+    try:
+        queries = TrainConfig.from_dict(run.config_values()).queries
+    except (TypeError, ValueError):  # (a config no learner could train asks nothing)
         return None
-    following = (run.step // every + 1) * every
-    return following if not run.total_steps or following <= run.total_steps else None
+    following = queries.next_query_step(run.step, asked=asked)
+    return following if following is not None and (not run.total_steps or following <= run.total_steps) else None
 
 
 class EffortOut(BaseModel):

@@ -1,7 +1,7 @@
 """Several seeds of one task side by side, each stopped at its target or its budget, and one table of them all.
 
     python bench/seeds.py --task door --seeds 0-4 --parallel 2
-    python bench/seeds.py --task pusher --seeds 0-2 --set n_step=3 --out bench/out/n3 --csv bench/out/n3.csv
+    python bench/seeds.py --task pusher --seeds 0-2 --set updates_per_step=1 --out bench/out/u1 --csv bench/out/u1.csv
     python bench/seeds.py --task pusher --seeds 0-14 --parallel 15 --set device=cuda replay_pipeline=device
 
 Each seed is a whole `bench/learn.py` run (its own server, `raq oracle` and learner on SQLite) in
