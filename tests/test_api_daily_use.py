@@ -3,6 +3,7 @@ ids are never given twice, a finished run can be trained further, /compare witho
 
 import re
 
+import sqlalchemy as sa
 from conftest import image_bytes
 from fastapi.testclient import TestClient
 
@@ -19,6 +20,19 @@ def _run(store: Store, name: str = "", **values: object) -> int:
 def _ask(store: Store, run_id: int) -> int:
     image = image_bytes((48, 48))
     return store.post_query(run_id=run_id, env_step=1000, model_png=image, display_png=image, score=1.0).id
+
+
+def _ask_in_an_old_schema(store: Store, run_id: int) -> None:
+    """A question as a store of the schema's own version posted it (today's store writes newer columns)."""
+    image = image_bytes((48, 48))
+    with store.engine.begin() as connection:
+        connection.execute(
+            sa.text(
+                "INSERT INTO queries (run_id, env_step, score, strategy, info, model_png, display_png, status, "
+                "created_at) VALUES (:run_id, 1000, 1.0, 'argmax', '{}', :png, :png, 'pending', CURRENT_TIMESTAMP)"
+            ),
+            {"run_id": run_id, "png": image},
+        )
 
 
 def test_the_queue_shows_live_runs_questions_first_and_the_badge_counts_only_theirs(
@@ -56,7 +70,7 @@ def test_run_ids_are_not_reused_in_a_database_made_before_migration_0007(tmp_pat
     upgrade(url, "0006_goal_set_env")
     old = Store(url)
     first, second = _run(old, "first"), _run(old, "second")
-    _ask(old, first)
+    _ask_in_an_old_schema(old, first)
     old.record_metrics(run_id=second, step=10, values={"eval/return": 1.0})
     old.delete_run(run_id=second)
     reused = _run(old, "made before the migration")

@@ -436,8 +436,19 @@ def test_answer_numbers_go_on_from_the_answers_given_before_the_counter_existed(
     upgrade(url, "0004_login_failures")
     store = Store(url)
     run_id = make_run(store)
-    ids = [post(store, run_id, env_step=i) for i in range(3)]
     store.dispose()
+    with sa.create_engine(url).begin() as connection:  # questions as 0004's store posted them
+        ids = [
+            connection.execute(
+                sa.text(
+                    "INSERT INTO queries (run_id, env_step, score, strategy, info, model_png, display_png, status, "
+                    "created_at) VALUES (:run_id, :step, 2.5, 'argmax', '{}', :png, :png, 'pending', "
+                    "CURRENT_TIMESTAMP) RETURNING id"
+                ),
+                {"run_id": run_id, "step": step, "png": PNG},
+            ).scalar_one()
+            for step in range(3)
+        ]
     with sa.create_engine(url).begin() as connection:  # answers as 0004's store numbered them
         for seq, query_id in enumerate(ids[:2], start=1):
             connection.execute(
