@@ -4,7 +4,7 @@ envs the New run form suggests."""
 
 import threading
 from collections import OrderedDict
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from functools import lru_cache
 
 from contract.envs import BadObservation, env_id_problem, first_frames, module_env_ids
@@ -27,21 +27,33 @@ class FirstFrames:
     def __init__(self, entries: int) -> None:
         self.entries = entries
         self._made: OrderedDict[tuple[str, int], tuple[bytes, bytes, str]] = OrderedDict()
-        self._lock = threading.Lock()
+        self._making: dict[tuple[str, int], Future[tuple[bytes, bytes, str]]] = {}
+        self._lock = threading.RLock()  # (a made future's callback may run inside get, under its lock)
         self._maker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="env-preview")
 
     def get(self, env_id: str, size: int) -> tuple[bytes, bytes, str]:
+        """The frames, from the cache or made once however many wait for them (a kept frame never waits for
+        another env being made); an error is raised to every waiter and not kept."""
         key = (env_id, size)
         with self._lock:
             if key in self._made:
                 self._made.move_to_end(key)
                 return self._made[key]
-            made = self._maker.submit(first_frames, env_id, image_size=size, display_size=DISPLAY_SIZE)
-            frames = made.result()  # (an error is raised here, and not kept)
-            self._made[key] = frames
-            while len(self._made) > self.entries:
-                self._made.popitem(last=False)
-            return frames
+            making = self._making.get(key)
+            if making is None:
+                making = self._making[key] = self._maker.submit(
+                    first_frames, env_id, image_size=size, display_size=DISPLAY_SIZE
+                )
+                making.add_done_callback(lambda done: self._keep(key, done))
+        return making.result()
+
+    def _keep(self, key: tuple[str, int], done: "Future[tuple[bytes, bytes, str]]") -> None:
+        with self._lock:
+            del self._making[key]
+            if done.exception() is None:
+                self._made[key] = done.result()
+                while len(self._made) > self.entries:
+                    self._made.popitem(last=False)
 
 
 _first_frames = FirstFrames(PREVIEW_CACHE_ENTRIES)

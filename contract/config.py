@@ -14,7 +14,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from functools import cache
 from pathlib import Path
-from typing import Any, Literal, TypeVar, get_args, get_origin, get_type_hints
+from typing import Any, Generic, Literal, TypeVar, get_args, get_origin, get_type_hints
 
 from contract.algorithms import ALGORITHMS
 
@@ -123,6 +123,7 @@ def device_need(device: str) -> str | None:
     return "a learner with CUDA" if needed == 1 else f"a learner with at least {needed} CUDA GPUs ({device})"
 
 
+@cache
 def _choice_fields() -> dict[str, tuple[Any, ...]]:
     """Fields typed as Literal[...] and their allowed values."""
     hints = get_type_hints(TrainConfig)
@@ -306,6 +307,16 @@ class MethodConfig(SACConfig, NetworkConfig, ClassifierConfig, QueryConfig):
     """Reward method, one of contract.algorithms.ALGORITHM_SPECS: vice_raq, vice, raq, naive_classifier, sparse."""
 
 
+class PartOf(Generic[Part]):
+    """`config.sac` and friends: one part of a TrainConfig's values as that part (TrainConfig.part)."""
+
+    def __init__(self, part: type[Part]) -> None:
+        self.part = part
+
+    def __get__(self, config: "TrainConfig", owner: type | None = None) -> Part:
+        return config.part(self.part)
+
+
 @dataclass
 class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
     """Everything that defines a training run, stored as one flat JSON object (the paper's settings unless a field
@@ -339,33 +350,13 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
         """The values of one part of the configuration (SACConfig, NetworkConfig, …) as that part."""
         return part(**{spec.name: getattr(self, spec.name) for spec in fields(part)})  # type: ignore[call-overload]
 
-    @property
-    def task(self) -> "TaskConfig":
-        return self.part(TaskConfig)
-
-    @property
-    def sac(self) -> "SACConfig":
-        return self.part(SACConfig)
-
-    @property
-    def networks(self) -> "NetworkConfig":
-        return self.part(NetworkConfig)
-
-    @property
-    def classifier(self) -> "ClassifierConfig":
-        return self.part(ClassifierConfig)
-
-    @property
-    def queries(self) -> "QueryConfig":
-        return self.part(QueryConfig)
-
-    @property
-    def evaluation(self) -> "EvaluationConfig":
-        return self.part(EvaluationConfig)
-
-    @property
-    def execution(self) -> "ExecutionConfig":
-        return self.part(ExecutionConfig)
+    task = PartOf(TaskConfig)
+    sac = PartOf(SACConfig)
+    networks = PartOf(NetworkConfig)
+    classifier = PartOf(ClassifierConfig)
+    queries = PartOf(QueryConfig)
+    evaluation = PartOf(EvaluationConfig)
+    execution = PartOf(ExecutionConfig)
 
     def memory_estimate(self) -> int:
         """Bytes of host memory the run's images take at most: the replay's frame ring (two frames per

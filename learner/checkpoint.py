@@ -28,6 +28,7 @@ from typing import Any
 import torch
 
 from contract.checkpoint_location import FILENAME, checkpoint_path, checkpoint_url, is_remote
+from contract.store.errors import error_chain
 
 __all__ = [
     "FILENAME", "CheckpointStoreFull", "checkpoint_path", "checkpoint_url", "is_remote", "load_checkpoint",
@@ -55,14 +56,9 @@ class CheckpointStoreFull(RuntimeError):
 def _full_store_error(error: BaseException) -> OSError | None:
     """The OSError "no space left" (or "quota exceeded") that `error` is or was raised while handling, if any
     (torch.save reports a failed write as a RuntimeError of its own, with the OSError as its context)."""
-    seen: list[BaseException] = []
-    current: BaseException | None = error
-    while current is not None and current not in seen:
-        if isinstance(current, OSError) and current.errno in STORE_FULL_ERRNOS:
-            return current
-        seen.append(current)
-        current = current.__cause__ or current.__context__
-    return None
+    return next(
+        (e for e in error_chain(error) if isinstance(e, OSError) and e.errno in STORE_FULL_ERRNOS), None
+    )
 
 
 @contextmanager

@@ -68,9 +68,10 @@ class Trainer:
         self.replay = ReplayBuffer(config.replay_capacity, (size, size, 3), self.action_dim, envs=len(episodes))
         self.reward_model = RewardModel.for_run(config, self.rng) if self.spec.classifier else None
         self.queries: QueryChannel | None = None
+        self.query_rule = config.queries
         if self.spec.queries and self.reward_model is not None:
             self.queries = QueryChannel(
-                config.queries, store=store, run_id=self.run_id, reward_model=self.reward_model,
+                self.query_rule, store=store, run_id=self.run_id, reward_model=self.reward_model,
                 counters=self.counters, control=control, keep_no_answers=keeps_no_answers(config),
                 image_size=size,
             )  # fmt: skip
@@ -167,7 +168,7 @@ class Trainer:
         training = self._end_of_epoch(beside_evaluation=evaluation) if epoch_end else None
         if evaluation:
             self._evaluate(training)
-        if self.queries is not None and cfg.queries.asks_after(step, asked=self.queries.asked):
+        if self.queries is not None and self.query_rule.asks_after(step, asked=self.queries.asked):
             self.queries.ask()
         if step % cfg.log_every == 0:
             self._log()

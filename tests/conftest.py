@@ -258,6 +258,18 @@ def dot_reach(tmp_path: Path) -> Iterator[tuple[Settings, Store, int]]:
     store.dispose()
 
 
+@contextmanager
+def mounted_tmpfs(mount: Path, size: str) -> Iterator[Path]:
+    """A tmpfs of `size` (as mount's -o size=, e.g. "64m") at the new folder `mount` (mounted as root, which
+    `make test` runs as), unmounted after."""
+    mount.mkdir()
+    subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mount)], check=True)
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+
+
 def create_run(store: Store, goal_set_id: int | None, config: "TrainConfig") -> int:
     """A queued run of `config` (its env, algorithm, seed and steps in the run's columns), as the API makes it."""
     run = store.create_run(

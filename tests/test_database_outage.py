@@ -15,7 +15,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-from conftest import ROOT, run_live_server
+from conftest import ROOT, mounted_tmpfs, run_live_server
 from pg_server import PostgresServer
 
 from app.migrate import upgrade
@@ -182,14 +182,9 @@ def test_a_run_goes_on_through_three_postgresql_restarts(postgres: PostgresServe
 
 @pytest.fixture
 def small_disk(tmp_path: Path) -> Iterator[Path]:
-    """A 64 MiB tmpfs of this test's own (mounted as root, which `make test` runs as)."""
-    mount = tmp_path / "disk"
-    mount.mkdir()
-    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64m", "tmpfs", str(mount)], check=True)
-    try:
+    """A 64 MiB tmpfs of this test's own."""
+    with mounted_tmpfs(tmp_path / "disk", "64m") as mount:
         yield mount
-    finally:
-        subprocess.run(["umount", "-l", str(mount)], check=False)
 
 
 def fill_then_empty(disk: Path, probe: Callable[[], None], seconds: float = 2.5) -> None:

@@ -3,7 +3,6 @@ that loses its own connection are the run's failure (one line naming it), never 
 never a requeue that comes back every few seconds. Only the database's own connection errors are a blink."""
 
 import errno
-import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -12,6 +11,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import sqlalchemy as sa
+from conftest import mounted_tmpfs
 from test_learner_run import create_run, tiny_config
 
 from app.migrate import upgrade
@@ -73,15 +73,9 @@ def test_an_env_that_loses_its_connection_fails_its_run_in_one_line(store: Store
 
 @pytest.fixture
 def full_disk(tmp_path: Path) -> Iterator[Path]:
-    """A 128 KiB tmpfs of this test's own (mounted as root, which `make test` runs as): too small for a
-    checkpoint."""
-    mount = tmp_path / "checkpoints"
-    mount.mkdir()
-    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=128k", "tmpfs", str(mount)], check=True)
-    try:
+    """A 128 KiB tmpfs of this test's own: too small for a checkpoint."""
+    with mounted_tmpfs(tmp_path / "checkpoints", "128k") as mount:
         yield mount
-    finally:
-        subprocess.run(["umount", "-l", str(mount)], check=False)
 
 
 def test_a_full_checkpoint_store_fails_the_run_once_saying_so(store: Store, tmp_path: Path, full_disk: Path) -> None:

@@ -37,7 +37,7 @@ def is_transient(error: BaseException) -> bool:
     Only the database's own errors count (SQLAlchemy's OperationalError and friends with one of the messages
     above, or a connection the pool found dropped): an OSError of anything else (a full checkpoint disk, an env's
     connection reset) is that thing's failure, never a blink."""
-    for current in _chain(error):
+    for current in error_chain(error):
         if isinstance(current, exc.DBAPIError) and current.connection_invalidated:
             return True
         if isinstance(current, exc.OperationalError | exc.InterfaceError | exc.DisconnectionError | exc.TimeoutError):
@@ -53,7 +53,8 @@ def first_line(error: BaseException) -> str:
     return f"{type(error).__name__}: {message}" if message else type(error).__name__
 
 
-def _chain(error: BaseException) -> list[BaseException]:
+def error_chain(error: BaseException) -> list[BaseException]:
+    """`error` and every error it wraps or was raised while handling (a driver's error, a cause, a context)."""
     seen: list[BaseException] = []
     current: BaseException | None = error
     while current is not None and current not in seen:
