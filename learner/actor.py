@@ -21,6 +21,7 @@ import contextlib
 import multiprocessing
 import os
 import queue
+import sys
 import threading
 import time
 import traceback
@@ -61,6 +62,8 @@ ACTOR_NICENESS = -5
 """The actor's scheduling priority where the system allows it (root, or CAP_SYS_NICE): ahead of the learner."""
 START_SECONDS = 120.0
 """How long the actor may take to import its modules and make (connect to) its env."""
+FAILURE_FLUSH_SECONDS = 5.0
+"""How long a failed actor's process waits for its traceback to reach the learner before it ends."""
 
 
 class ActorState:
@@ -230,7 +233,9 @@ class ActorLoop:
         cfg = self.config
         while not self.started:  # the learner has read its checkpoint: the step the run is at
             self._read_learner()
-            if self._watchdog() is not None:
+            reason = self._watchdog()
+            if reason is not None:
+                print(f"actor of run {self.settings.run_id}: ended before its first episode: {reason}", flush=True)
                 return
             time.sleep(0.01)
         obs = self._begin_episode()
@@ -385,11 +390,33 @@ class ActorLoop:
 
 
 def serve(settings: ActorSettings, connection: Connection, outbox: Any) -> None:
-    """The actor process: run until the learner closes it or goes away; an error goes to the learner."""
+    """The actor process: run until the learner closes it or goes away (the arm held), then end; an error goes to
+    the learner, given FAILURE_FLUSH_SECONDS to reach its pipe.
+
+    The process ends with os._exit, not by returning: a multiprocessing queue's exit waits until everything put
+    has been written to its pipe, and a step larger than the pipe's buffer that a dead learner never reads would
+    keep the actor alive for good (the process holds the pipe's read end itself, so the write never fails)."""
+    code, flush_seconds = 0, 0.0
     try:
         ActorLoop(settings, connection, outbox).run()
     except Exception:
         outbox.put(Failure(traceback.format_exc()))
+        code, flush_seconds = 1, FAILURE_FLUSH_SECONDS
+    finally:
+        _end_process(outbox, code, flush_seconds)
+
+
+def _end_process(outbox: Any, code: int, flush_seconds: float) -> None:
+    """End the actor process now, its queue's waiting messages given `flush_seconds` to be written."""
+    with contextlib.suppress(Exception):
+        outbox.close()
+        flusher = threading.Thread(target=outbox.join_thread, name="actor-flush", daemon=True)
+        flusher.start()
+        flusher.join(flush_seconds)
+    with contextlib.suppress(Exception):
+        sys.stdout.flush()
+        sys.stderr.flush()
+    os._exit(code)
 
 
 # ====================================================================== the learner's side

@@ -2,6 +2,7 @@
 a person's reset before each episode, Stop robot and Resume through the store; the watchdog holds the arm when
 the learner is killed or the database goes away."""
 
+import contextlib
 import functools
 import os
 import signal
@@ -153,6 +154,75 @@ def test_a_killed_learner_leaves_the_arm_held_safe_within_the_watchdog_time(
             learner.kill()
         output = learner.communicate(timeout=30)[0].decode()
     assert f"arm {ActorState.LEARNER_GONE}" in output
+
+
+def arm_env(settings: Settings, log: Path) -> dict[str, str]:
+    """A learner subprocess's environment for a run on the recording arm that writes to `log`."""
+    env = dict(os.environ, RAQ_DATA_DIR=str(settings.data_dir), RAQ_DATABASE_URL=settings.resolved_database_url)
+    env.update(
+        OMP_NUM_THREADS="1", RAQ_ENV_MODULES="learner.testing_envs,recording_arm", PYTHONPATH=f"{ROOT / 'tests'}",
+    )  # fmt: skip
+    env[LOG_VARIABLE] = str(log)
+    return env
+
+
+def live_children(pid: int) -> set[int]:
+    """The processes whose parent is `pid` and which have not exited (a zombie has)."""
+    children = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError):
+            fields = stat.read_text().rpartition(")")[2].split()
+            if int(fields[1]) == pid and fields[0] != "Z":
+                children.add(int(stat.parent.name))
+    return children
+
+
+def is_running(pid: int) -> bool:
+    """The process exists and has not exited (a zombie has)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_a_killed_learners_actor_holds_the_arm_sends_nothing_more_and_exits(
+    setup: tuple[Settings, Store, int], tmp_path: Path
+) -> None:
+    """A SIGKILLed learner's actor holds the arm within the watchdog time, sends no action after the hold, and
+    exits within a few seconds, leaving no process behind. Each step is larger than a pipe's buffer (a 256-pixel
+    view), as a robot camera's are: one the dead learner never reads cannot keep the actor alive."""
+    settings, store, goal_set_id = setup
+    log = tmp_path / "arm.log"
+    config = real_time_config(
+        env_id=ENV_ID, control_hz=10.0, total_steps=100_000, reset_every_episode=False, episode_steps=1000,
+        display_size=256,
+    )  # fmt: skip
+    run_id = create_run(store, goal_set_id, config)
+    learner = subprocess.Popen(
+        [sys.executable, "-m", "learner.worker", "--once", "--name", "doomed"], cwd=ROOT, env=arm_env(settings, log),
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    children: set[int] = set()
+    try:
+        wait_for(lambda: learner.poll() is not None or store.get_run(run_id=run_id).step >= 5, 120, "the run's steps")
+        assert learner.poll() is None, learner.communicate(timeout=30)[0].decode()
+        children = live_children(learner.pid)
+        assert children  # the actor (and multiprocessing's resource tracker)
+        learner.send_signal(signal.SIGKILL)
+        killed = time.monotonic()
+        wait_for(lambda: any(what == "hold" for what, _ in recorded(log)), 5, "the arm to be held")
+        held = next(at for what, at in recorded(log) if what == "hold")
+        assert held - killed < config.watchdog_seconds
+        wait_for(lambda: not any(is_running(pid) for pid in children), 10, "the actor to exit")
+        assert [at for what, at in recorded(log) if what == "action" and at > held] == []
+    finally:
+        if learner.poll() is None:
+            learner.kill()
+        for pid in children:  # (a failed check: nothing is left behind, and the learner's output ends)
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+        output = learner.communicate(timeout=30)[0].decode()
+    assert f"arm {ActorState.LEARNER_GONE}" in output, output
 
 
 def wait_for(condition: Callable[[], bool], seconds: float, what: str) -> None:
