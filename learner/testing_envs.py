@@ -19,10 +19,12 @@ class DotReach(gym.Env[np.ndarray, np.ndarray]):
 
     def __init__(
         self, obs_size: int = 24, render_size: int = 64, render_mode: str | None = None, radius: float = 0.3,
-        report_success: bool = True,
+        report_success: bool = True, target: tuple[float, float] = (0.5, 0.5), start: tuple[float, float] = (-0.9, 0.1),
     ) -> None:  # fmt: skip
+        """`target`: the green disc's centre; `start`: the range of each coordinate of the dot's start."""
         self.obs_size, self.render_size, self.render_mode = obs_size, render_size, render_mode
         self.radius, self.report_success = radius, report_success
+        self.target, self.start = np.asarray(target, dtype=np.float32), start
         self.observation_space = gym.spaces.Box(0, 255, (obs_size, obs_size, 3), dtype=np.uint8)
         self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
         self.position = np.zeros(2, dtype=np.float32)
@@ -31,12 +33,12 @@ class DotReach(gym.Env[np.ndarray, np.ndarray]):
         grid = (np.arange(size, dtype=np.float32) + 0.5) / size * 2.0 - 1.0
         xs, ys = np.meshgrid(grid, grid)
         image = np.full((size, size, 3), 30, dtype=np.uint8)
-        image[(xs - TARGET[0]) ** 2 + (ys - TARGET[1]) ** 2 < 0.25**2] = (40, 200, 60)
+        image[(xs - self.target[0]) ** 2 + (ys - self.target[1]) ** 2 < 0.25**2] = (40, 200, 60)
         image[(xs - self.position[0]) ** 2 + (ys - self.position[1]) ** 2 < 0.18**2] = (230, 40, 40)
         return image
 
     def _info(self) -> dict[str, Any]:
-        distance = float(np.linalg.norm(self.position - TARGET))
+        distance = float(np.linalg.norm(self.position - self.target))
         info: dict[str, Any] = {"distance": distance, "position": self.position.copy()}
         if self.report_success:
             info["success"] = distance < self.radius
@@ -44,7 +46,7 @@ class DotReach(gym.Env[np.ndarray, np.ndarray]):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
-        self.position = self.np_random.uniform(-0.9, 0.1, size=2).astype(np.float32)
+        self.position = self.np_random.uniform(*self.start, size=2).astype(np.float32)
         return self._draw(self.obs_size), self._info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -139,6 +141,11 @@ def add_dot_goals(store: Any, name: str = "dot") -> int:
 
 if "DotReach-v0" not in gym.registry:
     gym.register(id="DotReach-v0", entry_point="learner.testing_envs:DotReach", max_episode_steps=50)
+if "DotReachRight-v0" not in gym.registry:  # a task SAC learns within a test's minute: the dot pushed right
+    gym.register(
+        id="DotReachRight-v0", entry_point="learner.testing_envs:DotReach", max_episode_steps=25,
+        kwargs={"target": (1.0, 0.0), "radius": 0.7, "start": (-0.3, 0.3)},
+    )  # fmt: skip
 if "VisualNeedsMissingModule-v0" not in gym.registry:
     gym.register(
         id="VisualNeedsMissingModule-v0", entry_point="learner.testing_envs:MissingDependencyDot", max_episode_steps=50
