@@ -4,9 +4,10 @@ the learner.
 The learner starts the actor (`ActorProcess`), sends it fresh policy weights every `policy_sync_seconds` and a
 keep-alive four times a second, and reads the actor's transitions as they come. The actor's loop, once per
 control period (1 / control_hz seconds): act (uniformly at random until the warm-up's end or the first weights,
-then the policy, sampling), step the env, send the transition, and sleep to the next period. Between episodes
-it asks a person to reset the scene when the env says it needs one (`needs_person_reset`) or the run says so
-(`reset_every_episode`), and waits for their Ready, publishing the camera's view meanwhile.
+then the policy, sampling), step the env, send the transition, and sleep to the next period (`Pace`: a late step is
+sent late and the period restarts from it, no catching up). Between episodes it asks a person to reset the scene
+when the env says it needs one (`needs_person_reset`) or the run says so (`reset_every_episode`), and waits for
+their Ready, publishing the camera's view meanwhile.
 
 What the actor shares with the person goes through the store (`Store.report_actor`, read by the queue and run
 pages): the camera's newest frame, its state, and the controls it obeys (Stop robot, Resume, Ready). A thread of
@@ -60,6 +61,8 @@ KEEPALIVE_SECONDS = 0.25
 """How often the learner tells the actor it is alive (from a thread of its own: long updates do not delay it)."""
 ACTOR_NICENESS = -5
 """The actor's scheduling priority where the system allows it (root, or CAP_SYS_NICE): ahead of the learner."""
+LATE_SHARE = 0.1
+"""A step later than this share of the control period after its tick is late: the period restarts from it."""
 START_SECONDS = 120.0
 """How long the actor may take to import its modules and make (connect to) its env."""
 FAILURE_FLUSH_SECONDS = 5.0
@@ -115,6 +118,29 @@ class Controls:
 
 
 # ====================================================================== the actor process
+class Pace:
+    """When the next action may be sent. While the steps keep time, one control period after the previous tick (so
+    the rate holds on average); after a step more than LATE_SHARE of a period late, one period after that step was
+    sent, so a late step is never followed by an early one. No two actions are closer than (1 - LATE_SHARE)
+    periods, across episodes too."""
+
+    def __init__(self, period: float) -> None:
+        self.period = period
+        self.tick = -np.inf
+        """When the next action is due (monotonic)."""
+        self.last_sent: float | None = None
+
+    def sent(self, at: float) -> None:
+        """An action was sent at `at` (monotonic): the next is due one period after its tick, or after it if late."""
+        on_time = at - self.tick <= LATE_SHARE * self.period
+        self.tick = (self.tick if on_time else at) + self.period
+        self.last_sent = at
+
+    def restart(self, now: float) -> None:
+        """A new episode: its first action is due now, or a full period after the previous action."""
+        self.tick = now if self.last_sent is None else max(now, self.last_sent + self.period)
+
+
 class ActorLoop:
     """The actor's state in its process."""
 
@@ -143,6 +169,7 @@ class ActorLoop:
         self.rng = np.random.default_rng([cfg.seed, 1])
         self.store = Store(settings.database_url)
         self.period = 1.0 / settings.control_hz
+        self.pace = Pace(self.period)
         self.step = 0  # (the learner's "start" says where the run is)
         self.has_policy = False
         self.last_keepalive = time.monotonic()
@@ -243,7 +270,8 @@ class ActorLoop:
             return
         # the action for each observation is worked out as soon as it is seen, so at the period's tick it is sent
         # at once: the robot's clock does not wait for a forward pass (on a busy CPU, tens of ms)
-        action, length, next_tick, last_step = self._action(obs), 0, time.monotonic(), None
+        action, length, last_step = self._action(obs), 0, None
+        self.pace.restart(time.monotonic())
         while True:
             held = self._hold_if_needed()
             if held == "exit":
@@ -252,10 +280,16 @@ class ActorLoop:
                 obs = self._begin_episode()
                 if obs is None:
                     return
-                action, length, next_tick, last_step = self._action(obs), 0, time.monotonic(), None
+                action, length, last_step = self._action(obs), 0, None
+                self.pace.restart(time.monotonic())
+                continue
+            delay = self.pace.tick - time.monotonic()
+            if delay > 0:  # (woken early by a stop: the hold is looked at again, then the rest is waited)
+                self.wake.wait(delay)
                 continue
             started = time.monotonic()
             raw, reward, terminated, truncated, info = self.env.step(scale_action(action, self.action_space))
+            self.pace.sent(started)
             period = None if last_step is None else started - last_step
             last_step = started
             self.step, length = self.step + 1, length + 1
@@ -270,16 +304,11 @@ class ActorLoop:
                 obs = self._begin_episode()
                 if obs is None:
                     return
-                action, length, next_tick, last_step = self._action(obs), 0, time.monotonic(), None
+                action, length, last_step = self._action(obs), 0, None
+                self.pace.restart(time.monotonic())
                 continue
             self._read_learner()  # (a new policy is loaded here, between the steps)
             action = self._action(obs)
-            next_tick += self.period
-            delay = next_tick - time.monotonic()
-            if delay < -self.period:  # more than a period late (a slow env step): the rate restarts from now
-                next_tick = time.monotonic()
-            elif delay > 0:
-                self.wake.wait(delay)
 
     def _action(self, obs: np.ndarray) -> np.ndarray:
         """In an evaluation episode the policy's mean action; else uniformly random before the warm-up's end or the

@@ -2,12 +2,15 @@
 
 Subclass `RobotEnv` and write five methods: `read_camera`, `send_action`, `reset_scene`, `hold_safe` and,
 if the robot can tell, `read_success`. The base class does the rest the same way for every robot: actions are
-clipped to [-1, 1] and passed through your `limit_action` (workspace bounds, speed limits) before they reach the
-arm; the camera's frame is centre-cropped to a square and resized exactly as goal photos are
-(`contract.images.model_view`), so goals and observations look alike; `stop()` holds the arm safe and refuses
-further actions until the next `reset()`.
+clipped to [-1, 1] and passed through your `limit_action` (workspace bounds, speed limits; told the seconds since
+the previous action) before they reach the arm; the camera's frame is centre-cropped to a square and resized exactly
+as goal photos are (`contract.images.model_view`), so goals and observations look alike; `stop()` holds the arm safe
+and refuses further actions until the next `reset()`.
 """
 
+import inspect
+import time
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -28,7 +31,9 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Action space
     `Box(-1, 1, (action_dim,), float32)`: what each dimension means is the subclass's (e.g. end-effector
     displacements per control period). Values are clipped to [-1, 1], NaN becomes 0, and `limit_action` applies
-    the robot's own safety limits before `send_action` is called.
+    the robot's own safety limits before `send_action` is called. The actor sends no two actions closer than 0.9
+    of a control period (a late one is sent late, never followed by an early one); `limit_action` is told the real
+    time since the previous action, so a speed limit holds whatever the interval.
 
     ## Observation space
     `Box(0, 255, (image_size, image_size, 3), uint8)`: the camera's frame (any size), centre-cropped to a square
@@ -65,6 +70,8 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self.render_mode = "rgb_array"
         self.stopped = False
         self.last_frame: np.ndarray | None = None
+        self.last_action_at: float | None = None
+        """When the last action was sent (time.monotonic()); None: none since the last reset()."""
 
     # ------------------------------------------------------------------ to write for your robot
     def read_camera(self) -> np.ndarray:
@@ -87,8 +94,12 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         """Whether the task is done now, if the robot can tell (a sensor, a marker); None: it cannot."""
         return None
 
-    def limit_action(self, action: np.ndarray) -> np.ndarray:
-        """The robot's safety limits on an action in [-1, 1] (workspace box, speed); default: none beyond it."""
+    def limit_action(self, action: np.ndarray, *, seconds: float | None = None) -> np.ndarray:
+        """The robot's safety limits on an action in [-1, 1] (workspace box, speed); default: none beyond it.
+
+        `seconds`: the time since the previous action was sent (one control period for the first after a reset),
+        to scale a speed limit with: a step may move the arm at most top speed × `seconds`. An override that does
+        not take `seconds` (`limit_action(self, action)`) is called without it."""
         return action
 
     # ------------------------------------------------------------------ the same for every robot
@@ -104,14 +115,22 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         self.reset_scene()
-        self.stopped = False
+        self.stopped, self.last_action_at = False, None
         return self._observation(), self._info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self.stopped:
             raise RobotStopped("the robot was stopped: reset() before the next action")
         action = np.nan_to_num(np.asarray(action, dtype=np.float32).reshape(self.action_space.shape), nan=0.0)
-        self.send_action(np.asarray(self.limit_action(np.clip(action, -1.0, 1.0)), dtype=np.float32))
+        now = time.monotonic()
+        seconds = 1.0 / self.control_hz if self.last_action_at is None else now - self.last_action_at
+        action = np.clip(action, -1.0, 1.0)
+        if _takes_seconds(self.limit_action):
+            limited = self.limit_action(action, seconds=seconds)
+        else:  # (an override written without `seconds`)
+            limited = self.limit_action(action)
+        self.last_action_at = now
+        self.send_action(np.asarray(limited, dtype=np.float32))
         return self._observation(), 0.0, False, False, self._info()
 
     def stop(self) -> None:
@@ -143,3 +162,22 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     def _info(self) -> dict[str, Any]:
         success = self.read_success()
         return {} if success is None else {"success": float(success)}
+
+
+def _takes_seconds(limit_action: Callable[..., Any]) -> bool:
+    """Whether a `limit_action` takes the `seconds` keyword (one written before it was passed does not)."""
+    function = getattr(limit_action, "__func__", limit_action)
+    taken = _TAKES_SECONDS.get(function)
+    if taken is None:
+        parameters = inspect.signature(limit_action).parameters.values()
+        taken = any(
+            parameter.name == "seconds" and parameter.kind != parameter.POSITIONAL_ONLY
+            or parameter.kind == parameter.VAR_KEYWORD
+            for parameter in parameters
+        )  # fmt: skip
+        _TAKES_SECONDS[function] = taken
+    return taken
+
+
+_TAKES_SECONDS: dict[Any, bool] = {}
+"""`_takes_seconds`' answer by function."""

@@ -13,6 +13,8 @@ from robot.camera import OpenCVCamera
 
 STEP_M = 0.01
 """Metres the hand moves per control period at action 1 (fill in: your arm's safe step)."""
+TOP_SPEED_M_S = 0.05
+"""The hand's top speed in metres per second (fill in): no step moves it faster over the time it was given."""
 WORKSPACE_LOW = np.array([-0.20, -0.20, 0.02])
 WORKSPACE_HIGH = np.array([0.20, 0.20, 0.25])
 """The box the hand must stay in, in metres, in the arm's base frame (fill in)."""
@@ -30,9 +32,14 @@ class MyArmEnv(RobotEnv):
     def read_camera(self) -> np.ndarray:
         return self.camera.read()
 
-    def limit_action(self, action: np.ndarray) -> np.ndarray:
-        """No step leaves the workspace box."""
-        target = np.clip(self.hand + STEP_M * action, WORKSPACE_LOW, WORKSPACE_HIGH)
+    def limit_action(self, action: np.ndarray, *, seconds: float | None = None) -> np.ndarray:
+        """No step leaves the workspace box or moves the hand faster than TOP_SPEED_M_S over `seconds`, the time
+        since the previous action (one control period for the first after a reset)."""
+        step = STEP_M * action
+        if seconds is not None:
+            reach = TOP_SPEED_M_S * seconds
+            step = np.clip(step, -reach, reach)
+        target = np.clip(self.hand + step, WORKSPACE_LOW, WORKSPACE_HIGH)
         return ((target - self.hand) / STEP_M).astype(np.float32)
 
     def send_action(self, action: np.ndarray) -> None:

@@ -3,8 +3,9 @@ every action it sends, every reset and every hold to a log with its time.
 
 The log is the file that RECORDING_ARM_LOG names (nothing is written without it), one line per event:
 "<what> <time.monotonic()>", so a test reads, from its own process, when the actor's arm moved and when it was
-held (Linux's monotonic clock is the same in every process). `make("recording_arm:RecordingArm-v0")` with
-RAQ_ENV_MODULES listing `recording_arm` and this folder on the path.
+held (Linux's monotonic clock is the same in every process); "limit <seconds>" lines say what `limit_action` was
+told. `make("recording_arm:RecordingArm-v0")` with RAQ_ENV_MODULES listing `recording_arm` and this folder on the
+path. `LateArm-v0` is the same arm whose every LATE_EVERY-th action takes 1.3 control periods to send.
 """
 
 import os
@@ -19,6 +20,8 @@ from robot.base import RobotEnv
 
 LOG_VARIABLE = "RECORDING_ARM_LOG"
 ENV_ID = "recording_arm:RecordingArm-v0"
+LATE_ENV_ID = "recording_arm:LateArm-v0"
+LATE_EVERY = 5
 
 
 class RecordingArm(RobotEnv):
@@ -30,10 +33,14 @@ class RecordingArm(RobotEnv):
         self.dot = DotReach(obs_size=image_size, render_size=render_size)
         self.log = os.environ.get(LOG_VARIABLE)
 
-    def _record(self, what: str) -> None:
+    def _record(self, what: str, value: float | None = None) -> None:
         if self.log:
             with open(self.log, "a") as file:
-                file.write(f"{what} {time.monotonic()!r}\n")
+                file.write(f"{what} {time.monotonic() if value is None else value!r}\n")
+
+    def limit_action(self, action: np.ndarray, *, seconds: float | None = None) -> np.ndarray:
+        self._record("limit", float("nan") if seconds is None else seconds)
+        return action
 
     def read_camera(self) -> np.ndarray:
         return self.dot._draw(48)
@@ -50,6 +57,20 @@ class RecordingArm(RobotEnv):
         self._record("hold")
 
 
+class LateArm(RecordingArm):
+    """The recording arm whose every LATE_EVERY-th action takes 1.3 control periods to send (a slow driver)."""
+
+    def __init__(self, **kwargs: object) -> None:
+        super().__init__(**kwargs)  # type: ignore[arg-type]
+        self.sent = 0
+
+    def send_action(self, action: np.ndarray) -> None:
+        super().send_action(action)
+        self.sent += 1
+        if self.sent % LATE_EVERY == 0:
+            time.sleep(1.3 / self.control_hz)
+
+
 def recorded(log: Path) -> list[tuple[str, float]]:
     """The log's events in order: (what, monotonic time)."""
     if not log.exists():
@@ -60,3 +81,4 @@ def recorded(log: Path) -> list[tuple[str, float]]:
 
 if "RecordingArm-v0" not in gym.registry:
     gym.register(id="RecordingArm-v0", entry_point="recording_arm:RecordingArm", max_episode_steps=1000)
+    gym.register(id="LateArm-v0", entry_point="recording_arm:LateArm", max_episode_steps=1000)

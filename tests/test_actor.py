@@ -73,7 +73,8 @@ def test_real_time_run_trains_beside_its_actor_with_a_reset_before_every_episode
     names = {metric.name for metric in store.metrics(run_id=run_id)}
     assert {"actor/period_ms_p99", "critic/loss", "reward/loss", "queries/asked"} <= names
     periods = [m.value for m in store.metrics(run_id=run_id, names=["actor/period_ms_mean"])]
-    assert all(abs(value - 1000 / HZ) < 10 for value in periods), periods  # the actor kept its rate
+    assert periods and all(value >= 0.9 * 1000 / HZ for value in periods), periods  # never faster than its rate
+    # (on a busy machine a late step is sent late and the period restarts from it: tests/test_actor_pace.py)
     updates = [m.value for m in store.metrics(run_id=run_id, names=["perf/updates_per_second"])]
     assert updates and max(updates) > 0
     messages = [event.message for event in store.events(run_id=run_id, limit=1000)]

@@ -3,6 +3,7 @@ clipped and limited in the env, stop() holding the arm and refusing actions, and
 contract as a stand-in robot that gymnasium's checker accepts."""
 
 import io
+import time
 from pathlib import Path
 
 import cv2
@@ -81,6 +82,34 @@ def test_actions_are_clipped_cleaned_and_limited_before_they_reach_the_arm() -> 
     arm.step(np.array([np.nan, 0.25]))
     assert [list(action) for action in arm.sent] == [[0.5, -1.0], [0.0, 0.25]]
     assert arm.sent[0].dtype == np.float32
+
+
+class TimedArm(RecordingArm):
+    """A robot whose speed limit takes the time since the previous action."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.told: list[float | None] = []
+
+    def limit_action(self, action: np.ndarray, *, seconds: float | None = None) -> np.ndarray:
+        self.told.append(seconds)
+        return action
+
+
+def test_limit_action_is_told_the_time_since_the_previous_action_where_it_takes_it() -> None:
+    """One control period for the first action after a reset, then the real interval; an override written without
+    `seconds` (RecordingArm's) is called as before."""
+    arm = TimedArm()
+    arm.reset()
+    arm.step(np.zeros(2))
+    time.sleep(0.05)
+    arm.step(np.zeros(2))
+    arm.reset()
+    arm.step(np.zeros(2))
+    first, later, after_reset = arm.told
+    assert first == after_reset == 1.0 / arm.control_hz
+    assert later is not None and 0.05 <= later < 0.2
+    assert len(arm.sent) == 3
 
 
 def test_the_observation_is_the_camera_frame_made_like_a_goal_photo() -> None:
