@@ -429,6 +429,38 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
         return replace(robot, **overrides)
 
 
+ROBOT_PRESETS: dict[str, str] = {
+    "cpu_robot": "for a CPU learner: the simulated tasks' 48 px and 8 filters, which a few cores keep up with "
+    "beside a 5 Hz robot",
+    "real_robot": "for a GPU learner: the paper's 84 px and 32 filters, about 10x the compute per update",
+}  # fmt: skip
+"""The robot presets (TrainConfig classmethods of these names), each with what it is for, in words."""
+
+
+@dataclass(frozen=True)
+class RobotPreset:
+    """The robot settings a run on a device starts from (the New run form fills them in for a robot env)."""
+
+    name: str
+    """The TrainConfig classmethod: "cpu_robot" or "real_robot"."""
+    fields: dict[str, Any]
+    """The fields either robot preset sets, with this one's values (so switching presets replaces them all)."""
+    description: str
+    """What the preset is for, in words (ROBOT_PRESETS)."""
+
+
+def robot_preset_for(device: str) -> RobotPreset:
+    """The robot preset a learner on `device` keeps up with: TrainConfig.cpu_robot() for "cpu", the paper's
+    TrainConfig.real_robot() for "cuda" or "cuda:N". Its fields are every field in which a robot preset differs
+    from the defaults, read from the presets themselves."""
+    name = "real_robot" if device.startswith("cuda") else "cpu_robot"
+    defaults = asdict(TrainConfig())
+    presets = {preset: asdict(getattr(TrainConfig, preset)()) for preset in ROBOT_PRESETS}
+    names = sorted({f for values in presets.values() for f, value in values.items() if value != defaults[f]})
+    fields_set = {field: presets[name][field] for field in names}
+    return RobotPreset(name=name, fields=fields_set, description=ROBOT_PRESETS[name])
+
+
 REAL_ROBOT_GOAL_IMAGES = 80
 """Goal photos the paper gave each real-robot task."""
 FEWEST_GOAL_IMAGES = 10

@@ -1,18 +1,39 @@
 // New run page: POST /api/runs, show 422 errors beside the fields they name; fill in the settings a simulated
-// task starts from when it is picked.
+// task starts from when it is picked, and for a robot env the robot settings the server gives for the learner's
+// device (GET /api/envs/robot-settings: TrainConfig.cpu_robot() on a CPU, the paper's real_robot() on a GPU).
 import { api, describeDetail } from "/static/app.js";
 
 const CONFIG_FIELDS = ["total_steps", "query_every", "query_budget"];
 const edited = new Set(); // inputs changed by hand: a task's settings never overwrite them
+let robotSettings = null; // the server's answer for the env and device asked last (preset null: not a robot env)
+let robotFor = null;
 
-/** The task's settings (served by the page, sim.PRESETS) into the form: its fields
- * with an input of their own there, the rest as the More settings JSON unless that was edited by hand. */
-function fillTaskSettings(form, taskSettings) {
+/** The settings the chosen env starts from: a simulated task's (served by the page, sim.PRESETS), or a robot
+ * env's robot preset for the chosen device; null for any other env. */
+function startingSettings(form, taskSettings) {
   const envId = form.elements.env_id.value.trim();
   const task = taskSettings[envId];
+  if (task) {
+    return { fields: task.fields, said: `the settings ${envId} starts from`, more: ` (how it learns with them: ${task.results_page})` };
+  }
+  const robot = robotSettings;
+  if (!robot || !robot.preset || robot.env_id !== envId || robot.device !== form.elements.device.value) return null;
+  let more = ` (TrainConfig.${robot.preset}(), ${robot.description})`;
+  const goalSet = chosenGoalSet(form);
+  const size = robot.fields.image_size;
+  if (goalSet && size !== undefined && Number(goalSet.dataset.imageSize) !== size) {
+    more += `. The goal set prepares its photos at ${goalSet.dataset.imageSize} px: pick one of ${size} px`;
+  }
+  return { fields: robot.fields, said: `the robot settings for a ${robot.device} learner of ${envId} at ${robot.control_hz} Hz`, more };
+}
+
+/** The chosen env's settings into the form: its fields with an input of their own there, the rest as the More
+ * settings JSON unless that was edited by hand. */
+function fillTaskSettings(form, taskSettings) {
+  const settings = startingSettings(form, taskSettings);
   const note = document.getElementById("task-settings-note");
   const extraInput = document.getElementById("extra_config");
-  if (!task) {
+  if (!settings) {
     // another env: the config's defaults again (the page's values), except what was set by hand
     for (const name of CONFIG_FIELDS) {
       if (!edited.has(name)) form.elements[name].value = form.elements[name].defaultValue;
@@ -24,7 +45,7 @@ function fillTaskSettings(form, taskSettings) {
   const filled = [];
   const kept = [];
   const extra = {};
-  for (const [name, value] of Object.entries(task.fields)) {
+  for (const [name, value] of Object.entries(settings.fields)) {
     const input = CONFIG_FIELDS.includes(name) ? form.elements[name] : extraInput;
     if (edited.has(input.id)) {
       kept.push(name);
@@ -36,9 +57,28 @@ function fillTaskSettings(form, taskSettings) {
   }
   if (!edited.has("extra_config")) extraInput.value = Object.keys(extra).length ? JSON.stringify(extra) : "";
   note.textContent =
-    `Filled in the settings ${envId} starts from: ${filled.join(", ")} (how it learns with them: ${task.results_page}).` +
+    `Filled in ${settings.said}: ${filled.join(", ")}${settings.more}.` +
     (kept.length ? ` Kept what you set for ${kept.join(", ")}.` : "");
   note.classList.remove("hidden");
+}
+
+/** Ask the server for the robot settings of the env and device chosen, then fill them in (a simulated task or
+ * another env gets none). */
+async function lookUpRobotSettings(form, taskSettings) {
+  const envId = form.elements.env_id.value.trim();
+  const device = form.elements.device.value;
+  const key = `${envId}@${device}`;
+  if (envId !== previewed || taskSettings[envId] || key === robotFor) return;
+  robotFor = key;
+  let found = null;
+  try {
+    found = await api("GET", "/api/envs/robot-settings?" + new URLSearchParams({ env_id: envId, device }));
+  } catch {
+    found = null; // the env's class could not be read: no robot settings
+  }
+  if (robotFor !== key) return;
+  robotSettings = found;
+  if (found && found.preset) fillTaskSettings(form, taskSettings);
 }
 
 function clearErrors(form) {
@@ -98,6 +138,7 @@ function parseSeeds(text) {
 
 let previewTimer = null;
 let previewFor = null;
+let previewed = null; // the last env whose preview worked: only such an env is asked for robot settings
 
 /** The chosen goal set's <option> (its data-env-id and data-image-size), or null. */
 function chosenGoalSet(form) {
@@ -112,13 +153,15 @@ function imageSize(form) {
   return (option && option.dataset.imageSize) || form.dataset.defaultImageSize || "48";
 }
 
-/** The first frame of the env typed in the Task field (observation as the model sees it, display render). */
-async function showPreview(form) {
+/** The first frame of the env typed in the Task field (observation as the model sees it, display render); for an
+ * env that previews, its robot settings are asked for next. */
+async function showPreview(form, taskSettings) {
   const envId = form.elements.env_id.value.trim();
   const size = imageSize(form);
   const key = `${envId}@${size}`;
   if (!envId || key === previewFor) return;
   previewFor = key;
+  previewed = null;
   const box = document.getElementById("env-preview");
   const text = document.getElementById("env-preview-text");
   const field = form.querySelector('.field[data-field="env_id"]');
@@ -133,6 +176,8 @@ async function showPreview(form) {
     document.getElementById("env-preview-display").src = preview.display_url;
     box.querySelectorAll("figure").forEach((figure) => figure.classList.remove("hidden"));
     text.textContent = preview.description;
+    previewed = envId;
+    lookUpRobotSettings(form, taskSettings);
   } catch (error) {
     if (previewFor !== key) return;
     box.querySelectorAll("figure").forEach((figure) => figure.classList.add("hidden"));
@@ -154,7 +199,7 @@ document.addEventListener("DOMContentLoaded", () => {
   }
   const schedulePreview = () => {
     clearTimeout(previewTimer);
-    previewTimer = setTimeout(() => showPreview(form), 500);
+    previewTimer = setTimeout(() => showPreview(form, taskSettings), 500);
   };
   let envTyped = false; // the task typed by hand: picking a goal set no longer changes it
   envInput.addEventListener("input", () => {
@@ -168,11 +213,13 @@ document.addEventListener("DOMContentLoaded", () => {
       envInput.value = option.dataset.envId; // a goal set shows one task: pick it too
       fillTaskSettings(form, taskSettings);
     }
-    showPreview(form);
+    showPreview(form, taskSettings);
+    fillTaskSettings(form, taskSettings); // the goal set's image size may differ from the robot settings'
   });
+  form.elements.device.addEventListener("change", () => lookUpRobotSettings(form, taskSettings));
   envInput.addEventListener("input", schedulePreview);
-  envInput.addEventListener("change", () => showPreview(form));
-  showPreview(form);
+  envInput.addEventListener("change", () => showPreview(form, taskSettings));
+  showPreview(form, taskSettings);
   form.addEventListener("submit", async (event) => {
     event.preventDefault();
     clearErrors(form);
@@ -191,6 +238,7 @@ document.addEventListener("DOMContentLoaded", () => {
       const raw = form.elements[name].value.trim();
       config[name] = raw === "" ? null : Number(raw);
     }
+    if (!("device" in config)) config.device = form.elements.device.value;
     const goalSet = form.elements.goal_set_id.value;
     const seed = form.elements.seed.value.trim();
     const body = {

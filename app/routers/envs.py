@@ -12,9 +12,8 @@ from app.deps import ReadAuth, SameSiteRead, SettingsDep
 from app.previews import PREVIEW_SIZES, preview_frames, suggested_env_ids
 from app.schemas import TaskSettingsOut, errors
 from app.views import task_settings_out
-from contract.envs import (
-    SIM_ENV_IDS,
-)
+from contract.config import DEVICE_PATTERN, robot_preset_for
+from contract.envs import SIM_ENV_IDS, control_rate, env_id_problem
 from contract.settings import Settings
 
 router = APIRouter(prefix="/api/envs", tags=["envs"], responses=errors(401))
@@ -47,6 +46,29 @@ def list_envs(settings: SettingsDep, _auth: ReadAuth) -> EnvsOut:
     )  # fmt: skip
 
 
+class RobotSettingsOut(BaseModel):
+    env_id: str
+    control_hz: float
+    """The env's real-time rate (steps a second); 0: not a robot env, it runs in lockstep and has no robot preset."""
+    device: str
+    preset: str | None
+    """The TrainConfig robot preset for a learner on `device` ("cpu_robot", "real_robot"); None for 0 Hz."""
+    fields: dict[str, int | float]
+    """The fields the preset sets (the New run form fills them in)."""
+    description: str
+
+
+def _device(device: str) -> str:
+    if not DEVICE_PATTERN.fullmatch(device):
+        raise ValueError('must be "cpu", "cuda" or "cuda:N"')
+    return device
+
+
+DeviceQuery = Annotated[
+    str, Query(max_length=8, description='The learner\'s device: "cpu", "cuda" or "cuda:N".'), AfterValidator(_device)
+]
+
+
 def _listed_size(size: int) -> int:
     if size not in PREVIEW_SIZES:
         raise ValueError(f"must be one of {', '.join(map(str, PREVIEW_SIZES))}")
@@ -73,6 +95,30 @@ def _checked_frames(env_id: str, size: int, settings: Settings) -> tuple[bytes, 
     if isinstance(frames, str):
         raise _env_error(frames)
     return frames
+
+
+@router.get("/robot-settings", response_model=RobotSettingsOut)
+def robot_settings(
+    env_id: EnvIdQuery, settings: SettingsDep, _auth: ReadAuth, device: DeviceQuery = "cpu"
+) -> RobotSettingsOut:
+    """The robot settings a run of this env starts from on `device`: for a robot env (one with a real-time rate),
+    TrainConfig.cpu_robot()'s fields on "cpu" and the paper's TrainConfig.real_robot() on "cuda"; none for any
+    other env (422 when the id is not allowed or the env's class cannot be read)."""
+    problem = env_id_problem(env_id, allowed_modules=settings.env_modules)
+    if problem:
+        raise _env_error(problem)
+    try:
+        rate = control_rate(env_id)
+    except Exception as error:  # noqa: BLE001 - a module that fails to import is the user's answer, not a 500
+        message = f"cannot read {env_id!r}'s class: {type(error).__name__}: {error}"
+        raise _env_error(message.splitlines()[0][:500]) from error
+    if rate <= 0:
+        return RobotSettingsOut(env_id=env_id, control_hz=0.0, device=device, preset=None, fields={}, description="")
+    preset = robot_preset_for(device)
+    return RobotSettingsOut(
+        env_id=env_id, control_hz=rate, device=device, preset=preset.name, fields=preset.fields,
+        description=preset.description,
+    )  # fmt: skip
 
 
 @router.get("/preview", response_model=EnvPreviewOut, responses=errors(403))
