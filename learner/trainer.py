@@ -35,7 +35,7 @@ from learner.env_steps import EnvEpisode, EnvStep, env_rng_state, env_seed
 from learner.evaluation import Evaluator
 from learner.networks import resolve_precision
 from learner.policy_files import keep_evaluated_policy
-from learner.query_channel import QueryChannel
+from learner.queries import QueryChannel
 from learner.replay import ReplayBuffer
 from learner.reward import RewardModel, goal_examples
 from learner.run_control import RunControl
