@@ -8,6 +8,8 @@ SIGTERM) checkpoints and queues the run again so the next learner resumes it the
 import logging
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -72,6 +74,8 @@ class RunControl:
         self.beat_refused = False
         self.yield_to: Any = None  # a higher-priority queued run found at the last checkpoint
         self.phase: str | None = None  # RunPhase, sent with every heartbeat
+        self.beat_lock = threading.Lock()
+        self.beating = threading.Event()  # set while the heartbeat thread runs
 
     def set_phase(self, phase: str) -> None:
         """Say what the learner is doing now (warm-up, training, evaluating): one heartbeat when it changes."""
@@ -90,9 +94,39 @@ class RunControl:
 
     def beat(self, status: str | None = None) -> bool:
         """Send a heartbeat (with the step, once known); False when the store refuses it."""
-        self.last_beat = time.monotonic()
-        step = self.counters.step if self.step_known else None
-        return self.store.heartbeat(run_id=self.run_id, worker=self.worker, step=step, status=status, phase=self.phase)
+        with self.beat_lock:
+            self.last_beat = time.monotonic()
+            step = self.counters.step if self.step_known else None
+            return self.store.heartbeat(
+                run_id=self.run_id, worker=self.worker, step=step, status=status, phase=self.phase
+            )
+
+    @contextmanager
+    def heartbeats(self) -> Iterator[None]:
+        """Heartbeats every heartbeat_seconds from a thread of their own while training runs: a long classifier
+        epoch, a slow checkpoint or a busy host cannot silence a live learner long enough for another to take its
+        run (and its robot). A refusal is acted on at the next env step, as `tick`'s."""
+        self.beating.set()
+        thread = threading.Thread(target=self._beat_on, name=f"heartbeat-run-{self.run_id}", daemon=True)
+        thread.start()
+        try:
+            yield
+        finally:
+            self.beating.clear()
+            thread.join(timeout=self.heartbeat_seconds + 1.0)
+
+    def _beat_on(self) -> None:
+        while self.beating.is_set():
+            wait = self.last_beat + self.heartbeat_seconds - time.monotonic()
+            if wait > 0:
+                time.sleep(min(wait, 0.1))  # (short sleeps: the thread ends soon after training does)
+                continue
+            try:
+                if not self.beat():
+                    self.beat_refused = True
+            except Exception as error:  # noqa: BLE001 - the loop's own store calls meet (and report) the same error
+                logger.warning("run %s: heartbeat failed: %s", self.run_id, error)
+                time.sleep(self.heartbeat_seconds)
 
     def tick(self) -> None:
         """Heartbeat when one is due (also inside long steps); a refusal is acted on at the next env step."""

@@ -44,20 +44,21 @@ class Runner(Protocol):
 def train(runner: Runner) -> str:
     """Alg. 2 to the run's total_steps (or a stop, an interrupt, a loss): the Outcome."""
     trainer = runner.trainer
-    resumed = trainer.set_up()
-    if resumed is None:
-        return trainer.stop_or_lost()
-    runner.start(resumed=resumed)
-    trainer.begin_training(resumed=resumed)
-    while trainer.counters.step < trainer.config.total_steps:
-        outcome = trainer.check_control()
-        if outcome is not None:
-            return outcome
-        for step in runner.steps(trainer.steps_this_batch()):
-            if trainer.record_step(step):
-                runner.begin_episode(step.episode)
-            trainer.after_step()
-    return trainer.finish()
+    with trainer.control.heartbeats():
+        resumed = trainer.set_up()
+        if resumed is None:
+            return trainer.stop_or_lost()
+        runner.start(resumed=resumed)
+        trainer.begin_training(resumed=resumed)
+        while trainer.counters.step < trainer.config.total_steps:
+            outcome = trainer.check_control()
+            if outcome is not None:
+                return outcome
+            for step in runner.steps(trainer.steps_this_batch()):
+                if trainer.record_step(step):
+                    runner.begin_episode(step.episode)
+                trainer.after_step()
+        return trainer.finish()
 
 
 def open_runner(

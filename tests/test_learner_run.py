@@ -746,3 +746,35 @@ def test_an_epochs_classifier_trains_on_the_update_thread_while_the_evaluation_r
     metrics = {(m.name, m.step): m.value for m in store.metrics(run_id=run_id)}
     assert metrics[("eval/classifier_return", 100)] == pytest.approx(recorded[-1][1], rel=1e-5)
     assert ("reward/loss", 100) in metrics and ("reward/loss", 50) in metrics
+
+
+def test_heartbeats_go_on_while_training_work_blocks_the_loop(setup: tuple[Settings, Store, int]) -> None:
+    """A classifier epoch that holds the loop's thread for 2.5 s does not silence the learner: its heartbeats come
+    from a thread of their own, never more than twice heartbeat_seconds apart, so no other learner takes the run."""
+    settings, store, goal_set_id = setup
+    config = tiny_config(algorithm="vice_raq", total_steps=100, heartbeat_seconds=0.5)
+    run_id = create_run(store, goal_set_id, config)
+    runner = _claimed_runner(store, settings, run_id, config, goal_set_id)
+    trainer = runner.trainer
+    beats: list[float] = []
+    heartbeat = store.heartbeat
+    store.heartbeat = lambda **kwargs: beats.append(time.monotonic()) or heartbeat(**kwargs)  # type: ignore[method-assign]
+    classifier_step = trainer.updates.classifier_step
+    blocked: list[float] = []
+
+    def slow_classifier_step(**kwargs):
+        if not blocked:
+            blocked.append(time.monotonic())
+            time.sleep(2.5)  # (a long epoch, a slow disk: the loop's thread does nothing else meanwhile)
+        return classifier_step(**kwargs)
+
+    trainer.updates.classifier_step = slow_classifier_step
+    try:
+        assert train(runner) == Outcome.FINISHED
+    finally:
+        runner.close()
+    assert blocked
+    during = [t for t in beats if blocked[0] <= t <= blocked[0] + 2.5]
+    assert len(during) >= 3, during
+    gaps = np.diff(beats)
+    assert gaps.max() <= 2 * config.heartbeat_seconds, gaps.max()
