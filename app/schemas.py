@@ -8,6 +8,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validat
 
 from contract.config import TrainConfig
 from contract.effort import ANSWER_CAP_SECONDS, RESET_CAP_SECONDS
+from contract.learner_pace import BEHIND_SECONDS, BEHIND_SHARE
 from contract.store import INT32_MAX, Run, RunPhase, RunStatus, seconds_since
 from contract.store.robots import EVALUATION_EPISODES_MAX, ROBOT_LIVE_SECONDS
 
@@ -377,10 +378,31 @@ class EffortOut(BaseModel):
     )
 
 
+class LearnerPaceOut(BaseModel):
+    """Whether a real-time run's learner keeps up with its robot (contract.learner_pace)."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    updates_per_robot_step: float = Field(description="SAC updates per robot step over the latest log interval.")
+    updates_per_step: int = Field(description="What the run asks for.")
+    behind_seconds: float = Field(
+        description=f"How long the learner has stayed below {BEHIND_SHARE:g} of updates_per_step (0: it is not)."
+    )
+    behind: bool = Field(description=f"Behind for at least {BEHIND_SECONDS:g} s: it cannot keep up.")
+    message: str = Field(description="When behind: that it cannot keep up, for how long, and the cause.")
+    cause: str = Field(description='When behind, the run\'s own figures: "84 px and 32 filters on this CPU give …".')
+    suggestion: str = Field(description="When behind: the preset that fits, or another learner.")
+    suggested_fields: dict[str, Any] = Field(description="The config fields the suggestion sets.")
+
+
 class RunDetail(RunOut):  # as RunOut, with config=run.config_values() and latest_rollout=the rollout row (or None)
     config: dict[str, Any]
     latest_rollout: RolloutOut | None
     effort: EffortOut = Field(description="What the run has cost the person so far.")
+    learner_pace: LearnerPaceOut | None = Field(
+        description="A real-time run's learner against its robot: SAC updates per robot step, and when it cannot "
+        "keep up, why and what fits; None for a run in lockstep or still in its warm-up."
+    )
 
 
 # ---------------------------------------------------------------- queries

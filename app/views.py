@@ -18,6 +18,7 @@ from contract.checkpoint_location import (
 )
 from contract.effort import run_effort
 from contract.envs import SIM_TASK_SETTINGS
+from contract.learner_pace import run_pace
 from contract.settings import Settings
 from contract.store import Run, Store
 
@@ -55,6 +56,7 @@ def run_detail(store: Store, run: Run) -> RunDetail:
         "effort": run_effort(store, run.id),
     }  # fmt: skip
     config = run.config_values()
+    values["learner_pace"] = run_pace(store, run.id, config)
     return RunDetail.model_validate(row_with(run, **values, config=config), from_attributes=True)
 
 

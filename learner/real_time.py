@@ -14,6 +14,7 @@ import numpy as np
 
 from contract.config import TrainConfig
 from contract.envs import control_rate
+from contract.learner_pace import PACE_METRIC
 from contract.store import Store
 from learner.actor import ActorProcess, ActorSettings
 from learner.actor_link import RemoteActor
@@ -65,13 +66,17 @@ class RealTimeRunner:
         if trainer.queries is not None:
             trainer.queries.on_answers = self.evaluation.answers_read
         self.policy_sync_seconds, self.initial_random_steps = execution.policy_sync_seconds, config.initial_random_steps
+        self.updates_per_step = config.updates_per_step
         self.policy_sent_at = -np.inf
         self.periods: list[float] = []
-        trainer.metric_sources.append(self._period_metrics)
+        self.paced_from = (0, 0)  # (env step, SAC updates) at the last record
+        trainer.metric_sources.extend([self._period_metrics, self._pace_metrics])
 
     def start(self, *, resumed: bool) -> None:
         """The actor may begin: it resets the scene itself (a person first, when needed)."""
-        self.actor.start(self.trainer.counters.step)
+        counters = self.trainer.counters
+        self.paced_from = (counters.step, counters.total_updates)
+        self.actor.start(counters.step)
         self.begin_episode(self.episode)
 
     def begin_episode(self, episode: EnvEpisode) -> None:
@@ -127,6 +132,15 @@ class RealTimeRunner:
         self.periods.clear()
         return {"actor/period_ms_mean": float(periods.mean()), "actor/period_ms_p99": float(np.percentile(periods, 99)),
                 "actor/period_ms_max": float(periods.max())}  # fmt: skip
+
+    def _pace_metrics(self) -> dict[str, float]:
+        """SAC updates per robot step since the last record, over the steps after the warm-up (none is due
+        before); nothing while the interval had none of those steps."""
+        trainer, counters = self.trainer, self.trainer.counters
+        (step, updates), (last_step, last_updates) = (counters.step, counters.total_updates), self.paced_from
+        self.paced_from = (step, updates)
+        training_steps = (trainer.updates_due_by(step) - trainer.updates_due_by(last_step)) / self.updates_per_step
+        return {PACE_METRIC: (updates - last_updates) / training_steps} if training_steps > 0 else {}
 
     def close(self) -> None:
         self.actor.close()

@@ -121,6 +121,17 @@ function renderRun(run) {
     document.getElementById("rollout-caption").textContent = parts.join(" · ");
   }
   renderEffort(run.effort);
+  renderPace(run.learner_pace);
+}
+
+/** A real-time run's learner that cannot keep up with its robot (the run's `learner_pace`): why, in the run's own
+ * figures, and the preset that fits; hidden while it keeps up. */
+function renderPace(pace) {
+  const box = document.getElementById("learner-pace");
+  box.classList.toggle("hidden", !(pace && pace.behind));
+  if (!pace || !pace.behind) return;
+  document.getElementById("pace-message").textContent = pace.message;
+  document.getElementById("pace-suggestion").textContent = pace.suggestion;
 }
 
 /** What the run has cost the person so far (the run's `effort`): answers and the time spent answering, resets and

@@ -1,6 +1,7 @@
-"""The New run form's robot settings, in Debian's Chromium against a real server (the stand-in robot, MuJoCo with
-MUJOCO_GL=egl) and SQLite: choosing a robot env fills in the robot preset the server gives for the learner's
-device (TrainConfig.cpu_robot() on a CPU, the paper's real_robot() on a GPU) and the run starts with it."""
+"""The robot settings in Debian's Chromium against a real server (the stand-in robot, MuJoCo with MUJOCO_GL=egl)
+and SQLite: choosing a robot env on the New run form fills in the robot preset the server gives for the learner's
+device (TrainConfig.cpu_robot() on a CPU, the paper's real_robot() on a GPU) and the run starts with it; a run
+page says when the learner cannot keep up with the robot, why, and the preset that fits."""
 
 import os
 
@@ -15,8 +16,9 @@ from playwright.sync_api import Page, expect
 from test_browser import _scene, _shot
 from test_browser_daily_use import watch
 
-from contract.config import robot_preset_for
-from contract.store import Store
+from contract.config import TrainConfig, robot_preset_for
+from contract.learner_pace import PACE_METRIC, SPEED_METRIC
+from contract.store import RunStatus, Store
 
 pytestmark = pytest.mark.browser
 STANDIN = "robot.standin:PusherStandIn-v0"
@@ -97,3 +99,31 @@ def test_the_robot_settings_api_answers_by_env_and_device(live_server: str) -> N
     assert ask(env_id=STANDIN, device="tpu").status_code == 422
     refused = ask(env_id="os:Anything-v0")
     assert refused.status_code == 422 and "RAQ_ENV_MODULES" in refused.text
+
+
+def test_the_run_page_says_the_learner_cannot_keep_up_and_what_fits(
+    desktop: Page, live_server: str, store: Store
+) -> None:
+    page = desktop
+    problems = watch(page, live_server)
+    config = TrainConfig.real_robot(env_id=STANDIN).to_dict()
+    run_id = store.create_run(env_id=STANDIN, algorithm="vice_raq", config=config, total_steps=15_000).id
+    store.claim_next_run(worker="robot-learner")
+    store.heartbeat(run_id=run_id, worker="robot-learner", step=1500, status=RunStatus.TRAINING)
+    store.record_metrics(run_id=run_id, step=1000, values={SPEED_METRIC: 5.0})  # the robot at 5 Hz: 50 s a record
+    store.record_metrics(run_id=run_id, step=1250, values={SPEED_METRIC: 5.0, PACE_METRIC: 1.9})
+
+    page.goto(f"{live_server}/runs/{run_id}")
+    expect(page.locator("#person-effort")).to_be_visible()
+    expect(page.locator("#learner-pace")).to_be_hidden()  # keeping up: nothing said
+
+    store.record_metrics(run_id=run_id, step=1500, values={SPEED_METRIC: 5.0, PACE_METRIC: 0.6})
+    store.record_metrics(run_id=run_id, step=1750, values={SPEED_METRIC: 5.0, PACE_METRIC: 0.6})
+    page.reload()
+    pace = page.locator("#learner-pace")
+    expect(pace).to_be_visible()
+    expect(pace).to_contain_text("cannot keep up with the robot")
+    expect(pace).to_contain_text("84 px and 32 filters on this CPU give 0.6 updates a robot step")
+    expect(pace).to_contain_text("TrainConfig.cpu_robot(): image_size 48, conv_filters 8")
+    _shot(page, "robot-settings-03-learner-behind")
+    assert problems == [], problems
