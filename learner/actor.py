@@ -5,9 +5,10 @@ The learner starts the actor (`ActorProcess`), sends it fresh policy weights eve
 keep-alive four times a second, and reads the actor's transitions as they come. The actor's loop, once per
 control period (1 / control_hz seconds): act (uniformly at random until the warm-up's end or the first weights,
 then the policy, sampling), step the env, send the transition, and sleep to the next period (`Pace`: a late step is
-sent late and the period restarts from it, no catching up). Between episodes it asks a person to reset the scene
-when the env says it needs one (`needs_person_reset`) or the run says so (`reset_every_episode`), and waits for
-their Ready, publishing the camera's view meanwhile.
+sent late and the period restarts from it, no catching up). Between episodes it sends the arm to its start pose
+(env.reset()), then asks a person to reset the scene when the env says it needs one (`needs_person_reset`) or the
+run says so (`reset_every_episode`), and waits for their Ready, publishing the camera's view meanwhile; a Stop and
+Resume while it waits bring it back to waiting, the arm sent to its start pose again.
 
 What the actor shares with the person goes through the store (`Store.report_actor`, read by the queue and run
 pages): the camera's newest frame, its state, and the controls it obeys (Stop robot, Resume, Ready). A thread of
@@ -374,23 +375,26 @@ class ActorLoop:
             time.sleep(self.period)
 
     def _begin_episode(self) -> np.ndarray | None:
-        """Reset the scene (a person first, when needed) and send the first observation; None: exit. While Evaluate
-        now has episodes pending, this one is taken from the store: an evaluation episode (its steps carry the
-        round) acting with the policy's mean action."""
+        """Reset the scene and send the first observation; None: exit. The arm goes to its start pose first
+        (env.reset()); then, when a person must reset the scene, the card asks them and their Ready starts the
+        episode, its first observation the scene as they left it. A stop (or the watchdog) that held the arm while
+        they reset, once over, sends the arm to its start pose again and asks them again. While Evaluate now has
+        episodes pending, this one is taken from the store: an evaluation episode (its steps carry the round)
+        acting with the policy's mean action."""
         cfg, run_id = self.config, self.settings.run_id
-        if self.settings.person_reset or getattr(self.env.unwrapped, "needs_person_reset", False):
-            self._set_state(ActorState.WAITING_FOR_RESET)
-            asked_at: int | None = None  # the Ready count when the reset was asked for (None: not asked yet)
-            while asked_at is None or self.controls.reset_count <= asked_at:
-                if asked_at is None:  # (while the store is unreachable the watchdog holds the arm)
-                    with contextlib.suppress(Exception):
-                        asked_at = self.store.request_scene_reset(run_id=run_id).reset_count
-                self._read_learner()
-                if self._hold_if_needed() == "exit":
-                    return None
-                self._refresh_frame()
-                self.wake.wait(self.period)
-        raw, info = self.env.reset()
+        person = self.settings.person_reset or getattr(self.env.unwrapped, "needs_person_reset", False)
+        while True:
+            raw, info = self.env.reset()  # the arm to its start pose, before anybody's hands are in the scene
+            if not person:
+                break
+            waited = self._wait_for_person()
+            if waited == "exit":
+                return None
+            if waited == "ready":
+                look = getattr(self.env.unwrapped, "look", None)  # (a robot env: the scene as the person left it)
+                if look is not None:
+                    raw, info = look()
+                break
         if self.noise is not None:
             self.noise.restart()
         self.controls.evaluation_round = None
@@ -403,6 +407,23 @@ class ActorLoop:
         self._set_state(ActorState.ACTING)
         self.outbox.put(EpisodeStart(obs, info, display))
         return obs
+
+    def _wait_for_person(self) -> str:
+        """Ask a person to reset the scene and wait for their Ready: "ready"; "exit" (the learner is gone or closed
+        the actor); "resumed" (the arm was held meanwhile, by a stop or the watchdog, and may move again)."""
+        self._set_state(ActorState.WAITING_FOR_RESET)
+        asked_at: int | None = None  # the Ready count when the reset was asked for (None: not asked yet)
+        while asked_at is None or self.controls.reset_count <= asked_at:
+            if asked_at is None:  # (while the store is unreachable the watchdog holds the arm)
+                with contextlib.suppress(Exception):
+                    asked_at = self.store.request_scene_reset(run_id=self.settings.run_id).reset_count
+            self._read_learner()
+            held = self._hold_if_needed()
+            if held is not None:
+                return held
+            self._refresh_frame()
+            self.wake.wait(self.period)
+        return "ready"
 
     def _refresh_frame(self) -> None:
         """While the person resets: the live view follows the camera (a robot env reads it anew; others render)."""

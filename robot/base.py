@@ -44,7 +44,8 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Starting state
     `reset()` calls `reset_scene()`: the arm goes to its start pose. With `needs_person_reset` True, a person
-    puts the scene back before the episode starts (the queue page's "Reset the scene, then press Ready").
+    then puts the scene back (the queue page's "Reset the scene, then press Ready"), and the episode starts from
+    `look()`, the scene as they left it.
 
     ## Episode end
     By the time limit given at registration (`max_episode_steps`); `terminated` is always False.
@@ -116,6 +117,11 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         super().reset(seed=seed)
         self.reset_scene()
         self.stopped, self.last_action_at = False, None
+        return self.look()
+
+    def look(self) -> tuple[np.ndarray, dict[str, Any]]:
+        """The observation and info of the scene as the camera sees it now, without moving the arm (an episode's
+        first, once a person has reset the scene after `reset()`)."""
         return self._observation(), self._info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:

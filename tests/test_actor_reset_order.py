@@ -1,0 +1,81 @@
+"""The person's order before an episode on a robot: the arm goes to its start pose first, the reset card then asks
+the person to reset the scene, and Ready starts the episode. Stop then Resume while the card waits returns the actor
+to waiting for the reset, and the API (which the page reads) says so."""
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from conftest import create_run
+from fastapi.testclient import TestClient
+from recording_arm import ENV_ID, LOG_VARIABLE, recorded
+from test_actor import real_time_config
+
+from contract.settings import get_settings
+from contract.store import Store
+from learner.actor import ActorProcess, ActorSettings, ActorState
+from learner.testing_envs import add_dot_goals
+
+HZ = 10.0
+
+
+def test_the_arm_goes_home_before_the_person_is_asked_and_stop_resume_returns_to_the_wait(
+    store: Store, client: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    log = tmp_path / "arm.log"
+    monkeypatch.setenv(LOG_VARIABLE, str(log))  # (the actor process inherits both)
+    monkeypatch.setenv("RAQ_ENV_MODULES", "learner.testing_envs,recording_arm")
+    get_settings.cache_clear()
+    config = real_time_config(env_id=ENV_ID, control_hz=HZ, reset_every_episode=True, episode_steps=1000)
+    run_id = create_run(store, add_dot_goals(store), config)
+
+    def events(what: str, after: float = 0.0) -> list[float]:
+        return [at for kind, at in recorded(log) if kind == what and at > after]
+
+    def state() -> str | None:
+        """The actor's state as the page reads it (the API)."""
+        return client.get(f"/api/runs/{run_id}/robot").json()["actor_state"]
+
+    def wait_for(condition: Callable[[], bool], what: str, seconds: float = 30.0) -> None:
+        deadline = time.monotonic() + seconds
+        while not condition():
+            assert time.monotonic() < deadline, f"waited {seconds:g} s for {what}"
+            actor.next_message(0.02)  # (the learner's part: the actor's messages are taken)
+
+    actor = ActorProcess(ActorSettings(
+        config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=True,
+    ))  # fmt: skip
+    try:
+        actor.start(0)
+        # the arm to its start pose first, then the card asks the person
+        wait_for(lambda: store.robot_status(run_id=run_id).reset_needed, "the reset card")
+        assert state() == ActorState.WAITING_FOR_RESET
+        asked = time.monotonic()
+        homed = events("reset")
+        assert len(homed) == 1 and homed[0] < asked and events("action") == []
+        # Stop, then Resume, while the card waits: held, then back to waiting for the reset (the arm home again)
+        client.post(f"/api/runs/{run_id}/robot/stop").raise_for_status()
+        wait_for(lambda: state() == ActorState.STOPPED and bool(events("hold")), "the arm held")
+        resumed = time.monotonic()
+        client.post(f"/api/runs/{run_id}/robot/resume").raise_for_status()
+        wait_for(lambda: state() == ActorState.WAITING_FOR_RESET, "the actor waiting for the reset again", 5.0)
+        time.sleep(3 / HZ)  # and it stays so
+        assert state() == store.robot_status(run_id=run_id).actor_state == ActorState.WAITING_FOR_RESET
+        assert (
+            store.robot_status(run_id=run_id).reset_needed
+            and client.get(f"/api/runs/{run_id}/robot").json()["reset_needed"]
+        )
+        time.sleep(3 / HZ)  # the person still resetting: nothing moves
+        assert events("action") == []
+        homed_again = events("reset", after=resumed)
+        # Ready starts the episode: the arm acts, and does not go home again first
+        ready = time.monotonic()
+        client.post(f"/api/runs/{run_id}/robot/ready").raise_for_status()
+        wait_for(lambda: len(events("action")) >= 3, "the episode's actions")
+        wait_for(lambda: state() == ActorState.ACTING, "the actor acting")
+        assert events("reset", after=ready) == [] and len(homed_again) <= 1
+        assert events("action")[0] > ready
+    finally:
+        actor.close()
+        get_settings.cache_clear()
