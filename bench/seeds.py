@@ -8,7 +8,9 @@ Each seed is a whole `bench/learn.py` run (its own server, `raq oracle` and lear
 <out>/<task>-<algorithm>-seed<N>/. Run it again and every seed that is neither at its target nor at its budget
 is resumed from its checkpoint; those that are, are only reported. It prints one table (seed, steps to target,
 queries, yes, minutes), draws every seed's eval success in <out>/<task>-<algorithm>-seeds.png, and writes each
-seed's row into the CSV (a row of the same task, algorithm, seed and commit is replaced).
+seed's row into the CSV (a row of the same task, algorithm, seed and commit is replaced), with what the seed's run
+cost the person (contract.effort's EFFORT_COLUMNS, read from the seed's own store; rows written before these
+columns existed keep them empty).
 """
 
 import argparse
@@ -27,6 +29,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.plot import line_plot  # noqa: E402
+from contract.effort import EFFORT_COLUMNS, run_effort  # noqa: E402
+from contract.store import Store  # noqa: E402
 
 
 class Target(NamedTuple):
@@ -54,8 +58,9 @@ TARGETS: dict[str, Target] = {
 }
 CSV_COLUMNS = [
     "task", "algorithm", "seed", "target", "steps_to_target", "env_steps", "queries", "queries_yes", "minutes",
-    "device", "commit",
+    "device", "commit", *EFFORT_COLUMNS,
 ]  # fmt: skip
+"""The CSV's columns: the effort's last, so rows written before they existed read as they were."""
 
 
 @dataclass
@@ -73,6 +78,8 @@ class SeedResult:
     minutes: float
     device: str
     commit: str
+    effort: dict[str, int | float | str]
+    """EFFORT_COLUMNS' figures of the seed's run ("" each when its store holds no run)."""
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -99,7 +106,21 @@ def seed_result(folder: Path, *, task: str, algorithm: str, seed: int, target: f
         steps_to_target=int(reached["step"]) if reached else None, env_steps=int(summary["env_steps"]),
         queries=int(counted.get("queries/asked", 0)), queries_yes=int(counted.get("queries/yes", 0)),
         minutes=round(float(summary["wall_minutes"]), 1), device=device, commit=current_commit(),
+        effort=seed_effort(folder),
     )  # fmt: skip
+
+
+def seed_effort(folder: Path) -> dict[str, int | float | str]:
+    """What the seed's run cost the person, from the seed's own store (its answers and scene resets)."""
+    database = folder / "data" / "raq.sqlite3"
+    if not database.exists():
+        return dict.fromkeys(EFFORT_COLUMNS, "")
+    store = Store(f"sqlite:///{database.resolve()}")
+    try:
+        runs = store.list_runs()
+        return run_effort(store, runs[0].id).columns() if runs else dict.fromkeys(EFFORT_COLUMNS, "")
+    finally:
+        store.dispose()
 
 
 def current_commit() -> str:
@@ -170,7 +191,7 @@ def write_csv(path: Path, results: list[SeedResult]) -> None:
     fresh = {(r.task, r.algorithm, str(r.seed), r.commit) for r in results}
     rows = [row for row in rows if (row["task"], row["algorithm"], row["seed"], row["commit"]) not in fresh]
     for result in results:
-        values = asdict(result)
+        values = {**asdict(result), **result.effort}
         values["steps_to_target"] = "" if result.steps_to_target is None else result.steps_to_target
         rows.append({column: str(values[column]) for column in CSV_COLUMNS})
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -2,10 +2,18 @@
 a simulated task with its preset, down to its curve and summary; and bench/seeds.py over two seeds."""
 
 import csv
+import io
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
+
+from PIL import Image
+
+from app.migrate import upgrade
+from contract.effort import EFFORT_COLUMNS
+from contract.store import Store
 
 ROOT = Path(__file__).resolve().parent.parent
 SMALL = [  # a run of seconds: small networks and images, short intervals
@@ -70,6 +78,15 @@ def test_the_seeds_harness_runs_seeds_side_by_side_then_only_reports_them(tmp_pa
         ("pusher", "3", "", "150"), ("pusher", "4", "", "150"),
     ]  # fmt: skip
     assert rows[0]["queries"] == "3" and rows[0]["device"] == "cpu" and rows[0]["target"] == "0.9"
+    # what each seed cost the person, from its own store: the oracle answered through the API, with no page
+    for row, seed in zip(rows, (3, 4), strict=True):
+        store = Store(f"sqlite:///{out / f'pusher-vice_raq-seed{seed}' / 'data' / 'raq.sqlite3'}")
+        answered = len(store.answer_times(run_id=store.list_runs()[0].id))
+        store.dispose()
+        assert {name: float(row[name]) for name in EFFORT_COLUMNS} == {
+            "person_minutes": 0.0, "answers": answered, "answer_seconds": 0.0, "resets": 0, "reset_wait_seconds": 0.0,
+        }  # fmt: skip
+        assert answered > 0
 
     # again: both are at their budget, so nothing runs, and their rows are replaced, not added
     again = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120)
@@ -111,3 +128,59 @@ def test_the_seeds_tables_are_made_from_the_csv(tmp_path: Path) -> None:
         [sys.executable, "bench/results.py", "--tables", "--check"], cwd=ROOT, capture_output=True, text=True
     )
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+def _png() -> bytes:
+    buffer = io.BytesIO()
+    Image.new("RGB", (16, 16), (90, 40, 0)).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def test_each_seeds_row_holds_what_its_run_cost_the_person_and_old_rows_still_read(tmp_path: Path) -> None:
+    """A seed's effort columns come from its own store after the run (an answer seen on a page, a scene reset);
+    rows written before the columns existed are kept with them empty and still make the tables."""
+    sys.path.insert(0, str(ROOT))
+    from bench.results import per_seed_lines, seed_rows, summary_lines
+    from bench.seeds import CSV_COLUMNS, SeedResult, seed_effort, write_csv
+
+    assert CSV_COLUMNS[-len(EFFORT_COLUMNS) :] == list(EFFORT_COLUMNS)
+    folder = tmp_path / "pusher-vice_raq-seed1"
+    (folder / "data").mkdir(parents=True)
+    url = f"sqlite:///{folder / 'data' / 'raq.sqlite3'}"
+    upgrade(url)
+    store = Store(url)
+    run_id = store.create_run(env_id="VisualPusher-v0", algorithm="vice_raq", config={}, total_steps=1000).id
+    query = store.post_query(run_id=run_id, env_step=500, model_png=_png(), display_png=_png(), score=0.0)
+    store.mark_query_shown(query_id=query.id)
+    store.request_scene_reset(run_id=run_id)
+    time.sleep(0.3)
+    store.scene_ready(run_id=run_id)
+    store.answer_query(query_id=query.id, success=True, labeler="me")
+    store.dispose()
+    effort = seed_effort(folder)
+    assert (effort["answers"], effort["resets"]) == (1, 1)
+    assert 0.2 <= float(effort["answer_seconds"]) < 5 and 0.2 <= float(effort["reset_wait_seconds"]) < 5
+    assert float(effort["person_minutes"]) > 0
+    assert seed_effort(tmp_path / "no-such-seed") == dict.fromkeys(EFFORT_COLUMNS, "")
+
+    old_header = CSV_COLUMNS[: -len(EFFORT_COLUMNS)]
+    path = tmp_path / "seeds.csv"
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(old_header)
+        writer.writerow(["pusher", "vice_raq", "0", "0.9", "12000", "12000", "3", "2", "11.0", "cpu", "aaa"])
+    result = SeedResult(
+        task="pusher", algorithm="vice_raq", seed=1, target=0.9, steps_to_target=10_000, env_steps=10_000,
+        queries=2, queries_yes=1, minutes=9.0, device="cpu", commit="bbb", effort=effort,
+    )  # fmt: skip
+    write_csv(path, [result])
+    with path.open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert list(rows[0]) == CSV_COLUMNS
+    assert [row["seed"] for row in rows] == ["0", "1"]
+    assert all(rows[0][name] == "" for name in EFFORT_COLUMNS)  # the old row: kept, its effort unknown
+    assert {name: rows[1][name] for name in EFFORT_COLUMNS} == {name: str(effort[name]) for name in EFFORT_COLUMNS}
+    by_task = seed_rows(path)
+    assert [row["seed"] for row in by_task["pusher"]] == ["0", "1"]
+    assert "| pusher | 0 | 12,000 | 12,000 | 3 (2) | 11.0 | yes | cpu | aaa |" in per_seed_lines(by_task)
+    assert any(line.startswith("| pusher |") and "2 of 2" in line for line in summary_lines(by_task))
