@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 from conftest import create_run, learn_once_beside
+from recording_arm import ENV_ID, LOG_VARIABLE, recorded
 from test_actor import real_time_config
 
 from app.migrate import upgrade
@@ -24,6 +25,9 @@ from learner.actor_link import decode_message, encode_message
 from learner.actor_messages import Transition
 
 ROOT = Path(__file__).resolve().parent.parent
+LINK_SLACK_SECONDS = 0.5
+"""How much later than the watchdog time a remote actor may hold the arm: the learner's last keep-alive reaches it
+through the database (written every 0.25 s, read every 0.05 s)."""
 
 
 def host_env(settings: Settings) -> dict[str, str]:
@@ -99,12 +103,19 @@ def test_the_link_carries_the_actors_messages_in_order_and_the_learners_side(lin
 
 
 def test_a_remote_actor_drives_the_robot_for_each_learner_and_holds_it_when_one_is_killed(
-    dot_reach: tuple[Settings, Store, int],
+    dot_reach: tuple[Settings, Store, int], tmp_path: Path
 ) -> None:
+    """On an arm that records its calls: a SIGKILLed learner's remote actor holds the arm (hold_safe) within the
+    watchdog time, the keep-alive's trip through the database aside, and sends no action until the next learner."""
     settings, store, goal_set_id = dot_reach
-    config = real_time_config(remote_actor=True, total_steps=300, checkpoint_every=50)
+    log = tmp_path / "arm.log"
+    config = real_time_config(env_id=ENV_ID, remote_actor=True, total_steps=300, checkpoint_every=50)
     run_id = create_run(store, goal_set_id, config)
     env = host_env(settings)
+    env.update({
+        LOG_VARIABLE: str(log), "RAQ_ENV_MODULES": "learner.testing_envs,recording_arm",
+        "PYTHONPATH": str(ROOT / "tests"),
+    })  # fmt: skip
     actor = subprocess.Popen(
         [sys.executable, "-m", "cli", "actor", "--run", str(run_id)], cwd=ROOT, env=env, stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -127,13 +138,17 @@ def test_a_remote_actor_drives_the_robot_for_each_learner_and_holds_it_when_one_
         learner.send_signal(signal.SIGKILL)
         killed = time.monotonic()
         learner.wait(timeout=10)
+        holds = lambda: [at for what, at in recorded(log) if what == "hold" and at > killed]  # noqa: E731
+        wait_until(lambda: bool(holds()), 5, "the arm held after the learner's SIGKILL", actor)
+        held = holds()[0]
+        assert held - killed < config.watchdog_seconds + LINK_SLACK_SECONDS, held - killed
         wait_until(
             lambda: store.robot_status(run_id=run_id).actor_state == ActorState.LEARNER_GONE, 5,
-            "the arm held safe after the learner's SIGKILL", actor,
+            "the page to say the arm is held", actor,
         )  # fmt: skip
-        assert time.monotonic() - killed < config.watchdog_seconds + 0.5
         time.sleep(1.0)  # the arm stays held, and the page says why, until the next learner
         assert store.robot_status(run_id=run_id).actor_state == ActorState.LEARNER_GONE and actor.poll() is None
+        assert [at for what, at in recorded(log) if what == "action" and at > held] == []
         # the next learner takes the run over (its heartbeat went stale) and drives the same actor to the end
         quick = settings.model_copy(update={"stale_heartbeat_seconds": 1.0})
         time.sleep(1.5)
