@@ -1,26 +1,33 @@
 """The stand-in robot end to end: the simulated pusher behind the robot contract, paced at 5 Hz wall clock by the
-real-time actor, trained with the real-robot preset, reset by an automated person through the REST API.
+real-time actor, trained with a robot preset, reset by an automated person through the REST API.
 
-    python bench/robot_standin.py --seed 0                 # one seed to 6.2K env steps (about 21 minutes)
-    python bench/robot_standin.py --seed 0 --steps 600     # a short look at the timing figures
-    python bench/robot_standin.py --seed 0 --remote        # the actor as `raq actor` (remote_actor): the link
-                                                           # through the database and the checkpoint store
+    python bench/robot_standin.py --seeds 0-2 --parallel 3 --threads 1    # the CPU preset's seeds, robot.csv rows
+    python bench/robot_standin.py --seeds 0 --steps 600                   # a short look at the timing figures
+    python bench/robot_standin.py --seeds 0 --set device=cuda             # the paper's preset on a GPU
+    python bench/robot_standin.py --seeds 1 --steps 1600 --remote --probes   # `raq actor` (remote_actor), probed
 
-It starts `raq serve`, `raq oracle` and one learner (`raq learn --once`) on a fresh SQLite database, with 80 goal
-photos from `raq goals` at 84x84 and `TrainConfig.real_robot()` on `robot.standin:PusherStandIn-v0` (a person's
-reset before every episode: a resetter thread here presses Ready through POST /api/runs/{id}/robot/ready, as
-`raq oracle` answers the questions). Meanwhile it measures:
+Each seed starts `raq serve`, `raq oracle` and one learner (`raq learn --once`) on a fresh SQLite database, with
+80 goal photos from `raq goals` at the preset's image size and the robot preset for the learner's device
+(`contract.config.robot_preset_for`: `TrainConfig.cpu_robot()` on a CPU, `real_robot()` on a GPU; `--preset`
+picks another, `--set FIELD=VALUE` changes single fields) on `robot.standin:PusherStandIn-v0`. A person's reset
+comes before every episode: a resetter thread presses Ready through POST /api/runs/{id}/robot/ready, as
+`raq oracle` answers the questions. Meanwhile it measures:
 
 - the actor's control period (mean, p99 and max of each logging window's `actor/period_ms_*`);
-- Stop robot: POST …/robot/stop at a few steps, the time until the actor reports "stopped", then Resume;
+- SAC updates per robot step (`perf/updates_per_robot_step`, the mean of its windows);
 - the eval success by the env's ground truth, in a separate process: each policy the learner writes (policy.pt,
-  every eval_every steps) runs EVAL_EPISODES episodes of the stand-in unpaced, deterministically;
-- at the end, SIGKILL of the learner and the time until its actor reports the arm held safe.
+  every eval_every steps) runs EVAL_EPISODES episodes of the stand-in unpaced, deterministically; the run stops at
+  the first at TARGET_RATE (unless --keep-going);
+- what the run cost the person (contract.effort, from the seed's own store);
+- with --probes: Stop robot at STOP_AT steps (Resume 2 s later) and, at the end, SIGKILL of the learner and the
+  time until its actor reports the arm held safe.
 
-It prints the figures and writes them to <out>/figures.json.
+Each seed writes <out>/seed<N>/figures.json; every seed's row goes to --csv (docs/results/robot.csv), replacing
+an earlier row of the same seed and preset.
 """
 
 import argparse
+import csv
 import json
 import os
 import signal
@@ -38,20 +45,35 @@ import numpy as np  # noqa: E402
 
 from app.demo import add_simulated_goal_set  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
-from bench.learn import free_port, wait_for_health  # noqa: E402
+from bench.learn import free_port, parse_overrides, wait_for_health  # noqa: E402
 from bench.processes import stop_all  # noqa: E402
-from contract.config import REAL_ROBOT_GOAL_IMAGES, TrainConfig  # noqa: E402
+from bench.seeds import current_commit, parse_seeds  # noqa: E402
+from contract.config import REAL_ROBOT_GOAL_IMAGES, ROBOT_PRESETS, TrainConfig, robot_preset_for  # noqa: E402
+from contract.effort import EFFORT_COLUMNS, run_effort  # noqa: E402
+from contract.learner_pace import PACE_METRIC  # noqa: E402
 from contract.store import Store  # noqa: E402
 
 STANDIN = "robot.standin:PusherStandIn-v0"
+TASK = "pusher-standin"
+"""The task's name in robot.csv."""
 EVAL_EPISODES = 10
 """Episodes per evaluation of a written policy (by the env's ground truth)."""
-TARGET_RATE, TARGET_STEPS, TARGET_QUERIES = 0.9, 6_200, 25
-"""The paper's real-robot pusher: 90% success within 6.2K env steps and 25 queries."""
+TARGET_RATE = 0.9
+"""Success by the env's ground truth that counts as learned."""
+TARGETS: dict[str, tuple[int, int]] = {"cpu_robot": (15_000, 50), "real_robot": (6_200, 25)}
+"""Each preset's target: (env steps, queries) by which TARGET_RATE is to be reached. The CPU preset's is the
+lockstep pusher's budget at 5 Hz (50 minutes); the paper's real-robot pusher reached it within 6.2K steps and 25
+queries."""
 KILL_BEFORE_END = 100
-"""The learner is killed this many env steps before its last (a learner that lags its actor may finish soon after)."""
+"""With --probes, the learner is killed this many env steps before its last."""
 STOP_AT = (1_500, 3_000, 4_500)
-"""Env steps at which Stop robot is pressed (and Resume 2 s later)."""
+"""With --probes, env steps at which Stop robot is pressed (and Resume 2 s later)."""
+ROBOT_CSV = ROOT / "docs" / "results" / "robot.csv"
+CSV_COLUMNS = [
+    "task", "seed", "preset", "steps_to_target", "env_steps", "queries", "updates_per_step", "period_ms_mean",
+    "wall_minutes", "device", "commit", *EFFORT_COLUMNS,
+]  # fmt: skip
+"""robot.csv's columns: one row per seed and preset."""
 
 
 def request(url: str, method: str = "GET") -> dict:
@@ -84,8 +106,12 @@ def wait_for_state(url: str, run_id: int, state: str, timeout: float) -> float |
     return None
 
 
+def read_evaluations(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
 # ---------------------------------------------------------------------- the separate evaluation process
-def evaluate_policies(policy_file: Path, out: Path, done_file: Path) -> None:
+def evaluate_policies(policy_file: Path, out: Path, done_file: Path, image_size: int) -> None:
     """Evaluate each new policy.pt by the stand-in's ground truth until `done_file` appears."""
     import torch  # noqa: PLC0415
 
@@ -94,7 +120,7 @@ def evaluate_policies(policy_file: Path, out: Path, done_file: Path) -> None:
 
     torch.set_num_threads(1)
     os.nice(10)  # (the actor's period is what is measured)
-    env = make_env(STANDIN, image_size=84, display_size=64)
+    env = make_env(STANDIN, image_size=image_size, display_size=64)
     seen = -1
     while not done_file.exists():
         if not policy_file.exists():
@@ -122,41 +148,43 @@ def evaluate_policies(policy_file: Path, out: Path, done_file: Path) -> None:
         print(f"evaluation of the policy at step {policy.step}: success {rate:.2f}", flush=True)
 
 
-# ---------------------------------------------------------------------- the bench
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--steps", type=int, default=TARGET_STEPS, help="env steps to train for")
-    parser.add_argument("--out", type=Path, default=None)
-    parser.add_argument("--remote", action="store_true", help="the actor as its own `raq actor` (remote_actor)")
-    parser.add_argument("--evaluate", nargs=3, metavar=("POLICY", "OUT", "DONE"), help=argparse.SUPPRESS)
-    args = parser.parse_args()
-    if args.evaluate:
-        evaluate_policies(*(Path(value) for value in args.evaluate))
-        return 0
-    out = args.out or ROOT / "bench" / "out" / f"robot-standin-seed{args.seed}"
+# ---------------------------------------------------------------------- one seed
+def seed_config(args: argparse.Namespace, seed: int) -> tuple[str, TrainConfig]:
+    """The preset's name and the seed's config: the preset, then --set's fields."""
+    overrides = parse_overrides(args.set)
+    preset = args.preset or robot_preset_for(str(overrides.get("device", "cpu"))).name
+    config = getattr(TrainConfig, preset)(
+        env_id=STANDIN, seed=seed, total_steps=args.steps or TARGETS[preset][0], eval_every=500,
+        remote_actor=args.remote, **overrides,
+    )  # fmt: skip
+    return preset, config
+
+
+def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
+    """One seed's run end to end; its figures."""
     data_dir = out / "data"
     if data_dir.exists():
         raise SystemExit(f"{data_dir} exists: remove it or choose another --out")
     out.mkdir(parents=True, exist_ok=True)
+    preset, config = seed_config(args, seed)
+    target_steps, target_queries = TARGETS[preset]
     database_url = f"sqlite:///{(data_dir / 'raq.sqlite3').resolve()}"
     data_dir.mkdir()
     upgrade(database_url)
     store = Store(database_url)
     goal_set_id = add_simulated_goal_set(
-        store, task="pusher", name="stand-in goals", count=REAL_ROBOT_GOAL_IMAGES, image_size=84
-    )
-    config = TrainConfig.real_robot(
-        env_id=STANDIN, seed=args.seed, total_steps=args.steps, eval_every=500, remote_actor=args.remote
+        store, task="pusher", name="stand-in goals", count=REAL_ROBOT_GOAL_IMAGES, image_size=config.image_size
     )
     run = store.create_run(
-        name=f"stand-in seed {args.seed}", env_id=STANDIN, algorithm=config.algorithm, config=config.to_dict(),
-        seed=args.seed, goal_set_id=goal_set_id, total_steps=args.steps,
+        name=f"stand-in seed {seed}", env_id=STANDIN, algorithm=config.algorithm, config=config.to_dict(),
+        seed=seed, goal_set_id=goal_set_id, total_steps=config.total_steps,
     )  # fmt: skip
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     env = {**os.environ, "RAQ_DATA_DIR": str(data_dir), "RAQ_PORT": str(port), "PYTHONUNBUFFERED": "1"}
     env.setdefault("MUJOCO_GL", "egl")
+    if args.threads:
+        env["OMP_NUM_THREADS"] = str(args.threads)
     for name in ("RAQ_DATABASE_URL", "DATABASE_URL"):
         env.pop(name, None)
     raq = [sys.executable, "-m", "cli"]
@@ -168,13 +196,18 @@ def main() -> int:
     processes = [subprocess.Popen(raq + ["serve", "--port", str(port)], env=env, stdout=logs["serve"],
                                   stderr=subprocess.STDOUT)]  # fmt: skip
     done, presses = threading.Event(), []
-    figures: dict[str, object] = {"seed": args.seed, "steps": args.steps, "env_id": STANDIN, "remote": args.remote}
+    figures: dict[str, object] = {
+        "task": TASK, "seed": seed, "preset": preset, "steps": config.total_steps, "env_id": STANDIN,
+        "remote": args.remote, "device": config.device, "image_size": config.image_size,
+        "conv_filters": config.conv_filters, "target_steps": target_steps, "target_queries": target_queries,
+    }  # fmt: skip
     started = time.monotonic()
     try:
         wait_for_health(url)
-        oracle = raq + ["oracle", "--url", url, "--run", str(run.id), "--seed", str(args.seed)]
+        oracle = raq + ["oracle", "--url", url, "--run", str(run.id), "--seed", str(seed)]
         processes.append(subprocess.Popen(oracle, env=env, stdout=logs["oracle"], stderr=subprocess.STDOUT))
-        evaluate = [sys.executable, __file__, "--evaluate", str(policy_file), str(evaluations), str(done_file)]
+        evaluate = [sys.executable, __file__, "--evaluate", str(policy_file), str(evaluations), str(done_file),
+                    str(config.image_size)]  # fmt: skip
         processes.append(subprocess.Popen(evaluate, env=env, stdout=logs["evaluate"], stderr=subprocess.STDOUT))
         if args.remote:  # on the robot's host, sharing only the database and the checkpoint store
             actor = raq + ["actor", "--run", str(run.id)]
@@ -182,46 +215,150 @@ def main() -> int:
         learner = subprocess.Popen(raq + ["learn", "--once"], env=env, stdout=logs["learn"], stderr=subprocess.STDOUT)
         processes.append(learner)
         threading.Thread(target=resetter, args=(url, done, presses), daemon=True).start()
-        stops: list[float | None] = []
-        for stop_step in (step for step in STOP_AT if step < args.steps):
-            while store.get_run(run_id=run.id).step < stop_step and learner.poll() is None:
-                time.sleep(0.5)
-            request(f"{url}/api/runs/{run.id}/robot/stop", "POST")
-            stops.append(wait_for_state(url, run.id, "stopped", timeout=10))
-            time.sleep(2.0)
-            request(f"{url}/api/runs/{run.id}/robot/resume", "POST")
-            print(f"step {stop_step}: stop honoured in {stops[-1]} s; resumed", flush=True)
-        while store.get_run(run_id=run.id).step < args.steps - KILL_BEFORE_END and learner.poll() is None:
-            time.sleep(1.0)
-        learner.send_signal(signal.SIGKILL)
-        held = wait_for_state(url, run.id, "held safe: learner gone", timeout=10)
-        figures["stop_seconds"] = stops
-        figures["held_after_sigkill_seconds"] = held
+        if args.probes:
+            probe(args, store, url, run.id, learner, figures)
+        else:
+            while learner.poll() is None:
+                reached = any(row["success_rate"] >= TARGET_RATE for row in read_evaluations(evaluations))
+                if reached and not args.keep_going:
+                    print(f"eval success reached {TARGET_RATE}: stopping the run", flush=True)
+                    store.request_stop(run_id=run.id)
+                    learner.wait(timeout=300)
+                    break
+                time.sleep(1.0)
     finally:
         done.set()
         done_file.touch()
         stop_all(processes, signal.SIGINT, timeout=60)
         for log in logs.values():
             log.close()
-    figures["wall_minutes"] = (time.monotonic() - started) / 60
-    names = ["actor/period_ms_mean", "actor/period_ms_p99", "actor/period_ms_max", "queries/asked"]
-    metrics = {name: [(m.step, m.value) for m in store.metrics(run_id=run.id, names=[name])] for name in names}
-    p99 = [value for _, value in metrics["actor/period_ms_p99"]]
-    figures["period_ms_mean"] = float(np.mean([value for _, value in metrics["actor/period_ms_mean"]]))
-    figures["period_ms_p99_median_window"] = float(np.median(p99))
-    figures["period_ms_p99_worst_window"] = float(max(p99))
-    figures["period_ms_max"] = float(max(value for _, value in metrics["actor/period_ms_max"]))
-    rows = [json.loads(line) for line in evaluations.read_text().splitlines()] if evaluations.exists() else []
-    figures["evaluations"] = rows
-    reached = next((row["step"] for row in rows if row["success_rate"] >= TARGET_RATE), None)
-    figures["steps_to_target"] = reached
-    asked = [(step, value) for step, value in metrics["queries/asked"] if reached is None or step <= reached]
-    figures["queries"] = int(asked[-1][1]) if asked else 0
-    figures["best_success_rate"] = max((row["success_rate"] for row in rows), default=None)
+    figures["wall_minutes"] = round((time.monotonic() - started) / 60, 1)
+    figures |= run_figures(store, run.id, read_evaluations(evaluations))
     figures["resets"] = len(presses)
+    figures["effort"] = run_effort(store, run.id).columns()
+    figures["commit"] = current_commit()
     (out / "figures.json").write_text(json.dumps(figures, indent=2) + "\n")
     print(json.dumps(figures, indent=2))
     store.dispose()
+    return figures
+
+
+def probe(
+    args: argparse.Namespace, store: Store, url: str, run_id: int, learner: subprocess.Popen, figures: dict
+) -> None:
+    """Stop robot at STOP_AT (Resume 2 s later) and, near the end, SIGKILL of the learner: how soon each holds."""
+    stops: list[float | None] = []
+    steps = int(figures["steps"])
+    for stop_step in (step for step in STOP_AT if step < steps):
+        while store.get_run(run_id=run_id).step < stop_step and learner.poll() is None:
+            time.sleep(0.5)
+        request(f"{url}/api/runs/{run_id}/robot/stop", "POST")
+        stops.append(wait_for_state(url, run_id, "stopped", timeout=10))
+        time.sleep(2.0)
+        request(f"{url}/api/runs/{run_id}/robot/resume", "POST")
+        print(f"step {stop_step}: stop honoured in {stops[-1]} s; resumed", flush=True)
+    while store.get_run(run_id=run_id).step < steps - KILL_BEFORE_END and learner.poll() is None:
+        time.sleep(1.0)
+    learner.send_signal(signal.SIGKILL)
+    figures["stop_seconds"] = stops
+    figures["held_after_sigkill_seconds"] = wait_for_state(url, run_id, "held safe: learner gone", timeout=10)
+
+
+def run_figures(store: Store, run_id: int, evaluations: list[dict]) -> dict:
+    """The timing, pace and learning figures of a finished run, from its metrics and its evaluations."""
+    names = ["actor/period_ms_mean", "actor/period_ms_p99", "actor/period_ms_max", "queries/asked", PACE_METRIC]
+    metrics = {name: [(m.step, m.value) for m in store.metrics(run_id=run_id, names=[name])] for name in names}
+    figures: dict[str, object] = {"env_steps": int(store.get_run(run_id=run_id).step or 0)}
+    p99 = [value for _, value in metrics["actor/period_ms_p99"]]
+    if p99:
+        figures["period_ms_mean"] = round(float(np.mean([v for _, v in metrics["actor/period_ms_mean"]])), 1)
+        figures["period_ms_p99_median_window"] = round(float(np.median(p99)), 1)
+        figures["period_ms_p99_worst_window"] = round(float(max(p99)), 1)
+        figures["period_ms_max"] = round(float(max(v for _, v in metrics["actor/period_ms_max"])), 1)
+    pace = [value for _, value in metrics[PACE_METRIC]]
+    figures["updates_per_step"] = round(float(np.mean(pace)), 2) if pace else None
+    figures["evaluations"] = evaluations
+    reached = next((row["step"] for row in evaluations if row["success_rate"] >= TARGET_RATE), None)
+    figures["steps_to_target"] = reached
+    asked = [(step, value) for step, value in metrics["queries/asked"] if reached is None or step <= reached]
+    figures["queries"] = int(asked[-1][1]) if asked else 0
+    figures["best_success_rate"] = max((row["success_rate"] for row in evaluations), default=None)
+    return figures
+
+
+# ---------------------------------------------------------------------- the table
+def write_rows(path: Path, rows: list[dict]) -> None:
+    """Each seed's row into the CSV, replacing an earlier row of the same task, seed and preset."""
+    key = ("task", "seed", "preset")
+    kept = []
+    if path.exists():
+        with path.open() as file:
+            kept = list(csv.DictReader(file))
+    fresh = {tuple(str(row[k]) for k in key) for row in rows}
+    kept = [row for row in kept if tuple(row[k] for k in key) not in fresh]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=CSV_COLUMNS)
+        writer.writeheader()
+        for row in sorted(kept + rows, key=lambda row: (row["task"], row["preset"], int(row["seed"]))):
+            writer.writerow({name: row.get(name, "") for name in CSV_COLUMNS})
+
+
+def csv_row(figures: dict) -> dict:
+    row = {name: figures.get(name) for name in CSV_COLUMNS}
+    row |= figures["effort"]
+    return {name: "" if value is None else value for name, value in row.items()}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seeds", default="0", help='"0-2" or "0,2"')
+    parser.add_argument("--parallel", type=int, default=1, help="seeds run side by side")
+    parser.add_argument("--threads", type=int, default=None, help="torch threads of each learner (OMP_NUM_THREADS)")
+    parser.add_argument("--preset", choices=sorted(ROBOT_PRESETS), default=None,
+                        help="default: the one for --set device=... (cpu_robot on a CPU)")  # fmt: skip
+    parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="other TrainConfig fields")
+    parser.add_argument("--steps", type=int, default=None, help="env steps to train for (default: the target's)")
+    parser.add_argument("--keep-going", action="store_true", help="train on past the target")
+    parser.add_argument("--out", type=Path, default=ROOT / "bench" / "out" / "robot-standin")
+    parser.add_argument("--csv", type=Path, default=ROBOT_CSV, help="the table every seed's row goes to")
+    parser.add_argument("--remote", action="store_true", help="the actor as its own `raq actor` (remote_actor)")
+    parser.add_argument("--probes", action="store_true", help="Stop robot at STOP_AT; SIGKILL at the end")
+    parser.add_argument("--seed", type=int, default=None, help=argparse.SUPPRESS)  # (one seed, in its own process;
+    # --seeds is then ignored)
+    parser.add_argument("--evaluate", nargs=4, metavar=("POLICY", "OUT", "DONE", "SIZE"), help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.evaluate:
+        *paths, size = args.evaluate
+        evaluate_policies(*(Path(value) for value in paths), image_size=int(size))
+        return 0
+    if args.seed is not None:
+        run_seed(args, args.seed, args.out / f"seed{args.seed}")
+        return 0
+    seeds, running, rows = parse_seeds(args.seeds), {}, []
+    while seeds or running:
+        while seeds and len(running) < args.parallel:
+            seed = seeds.pop(0)
+            (args.out / f"seed{seed}").mkdir(parents=True, exist_ok=True)
+            log = (args.out / f"seed{seed}" / "bench.log").open("w")
+            running[seed] = subprocess.Popen([sys.executable, __file__, *sys.argv[1:], "--seed", str(seed)],
+                                             stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+            print(f"seed {seed} started: {args.out / f'seed{seed}'}", flush=True)
+        for seed, process in list(running.items()):
+            if process.poll() is not None:
+                del running[seed]
+                figures_file = args.out / f"seed{seed}" / "figures.json"
+                if process.returncode == 0 and figures_file.exists():
+                    rows.append(csv_row(json.loads(figures_file.read_text())))
+                    write_rows(args.csv, rows[-1:])
+                print(f"seed {seed} ended ({process.returncode})", flush=True)
+        time.sleep(2.0)
+    print("| seed | preset | steps to 90% | queries | updates per step | person minutes |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for row in rows:
+        steps = row["steps_to_target"] or f"not reached ({row['env_steps']})"
+        print(f"| {row['seed']} | {row['preset']} | {steps} | {row['queries']} | {row['updates_per_step']} | "
+              f"{row['person_minutes']} |")  # fmt: skip
     return 0
 
 
