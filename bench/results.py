@@ -1,7 +1,7 @@
 """The learning results in docs/results/: the Markdown tables of the README and docs/results.md, and the plot of
 the paper's comparison.
 
-    .venv/bin/python bench/results.py                 # rewrites the tables and docs/results/pusher-methods.png
+    .venv/bin/python bench/results.py                 # rewrites the tables and the plots
     .venv/bin/python bench/results.py --tables        # only the tables
     .venv/bin/python bench/results.py --tables --check  # exits 1 when they are not what docs/results/ gives
 
@@ -11,6 +11,9 @@ within the target when it reached the eval success rate within the env-step budg
 budget by then. The noisy oracle's rows (`bench/seeds.py --noise 0.1 --csv docs/results/seeds-noise.csv`) get
 their own table.
 
+The stand-in robot's table and plot: each row of docs/results/robot.csv (bench/robot_standin.py, one per seed and
+preset) against that bench's TARGETS, and each seed's evaluations from docs/results/robot/<preset>-seed<N>.json.
+
 The comparison: every folder of docs/results/compare/ is one bench/learn.py run, `pusher-<method>-seed<N>/`
 (its curve.csv and summary.json); bench/compare.py --by-method makes its table and its plot of each method's
 mean eval success with the spread over seeds, up to COMPARE_UNTIL env steps.
@@ -18,6 +21,7 @@ mean eval success with the spread over seeds, up to COMPARE_UNTIL env steps.
 
 import argparse
 import csv
+import json
 import statistics
 import sys
 from pathlib import Path
@@ -27,6 +31,8 @@ sys.path.insert(0, str(ROOT))
 
 from bench.compare import method_table, runs_by_method  # noqa: E402
 from bench.plot import line_plot  # noqa: E402
+from bench.robot_standin import TARGET_RATE as ROBOT_RATE  # noqa: E402
+from bench.robot_standin import TARGETS as ROBOT_TARGETS  # noqa: E402
 from bench.seeds import TARGETS as SEED_TARGETS  # noqa: E402
 
 RESULTS = ROOT / "docs" / "results"
@@ -36,7 +42,10 @@ COMPARE_RUNS = RESULTS / "compare"
 COMPARE_PLOT = RESULTS / "pusher-methods.png"
 COMPARE_UNTIL = 15_000
 """The comparison's horizon: the env steps every run of every method reached."""
-TABLE_FILES = {"README.md": ("summary",), "docs/results.md": ("summary", "seeds", "noise", "compare")}
+ROBOT_CSV = RESULTS / "robot.csv"
+ROBOT_FIGURES = RESULTS / "robot"
+ROBOT_PLOT = RESULTS / "robot-standin-seeds.png"
+TABLE_FILES = {"README.md": ("summary",), "docs/results.md": ("summary", "seeds", "noise", "robot", "compare")}
 """Which generated tables each file holds, each between <!-- results:NAME --> and <!-- /results:NAME -->."""
 
 
@@ -80,15 +89,19 @@ def target_text(task: str) -> str:
     return f"{target:.0%} within {thousands(budget)}{median}, ≤ {max_queries} queries"
 
 
-def summary_lines(by_task: dict[str, list[dict[str, str]]]) -> list[str]:
+def summary_lines(
+    by_task: dict[str, list[dict[str, str]]], robot: dict[str, list[dict[str, str]]] | None = None
+) -> list[str]:
+    """Per task, its seeds against the target; then per robot preset, the stand-in's seeds (robot_rows)."""
     lines = [
-        "| task | target | seeds within it | median env steps to it | median queries (yes) | device | commit |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "| task | target | seeds within it | median env steps to it | median queries (yes) | person minutes "
+        "(median) | device | commit |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for task in SEED_TARGETS:
         rows = by_task.get(task, [])
         if not rows:
-            lines.append(f"| {task} | {target_text(task)} | not measured | - | - | - | - |")
+            lines.append(f"| {task} | {target_text(task)} | not measured | - | - | - | - | - |")
             continue
         hit = [row for row in rows if within_target(row)]
         steps = median([int(row["steps_to_target"]) for row in hit])
@@ -98,11 +111,85 @@ def summary_lines(by_task: dict[str, list[dict[str, str]]]) -> list[str]:
         lines.append(
             f"| {task} | {target_text(task)} | {len(hit)} of {len(rows)} (seeds {seeds}) "
             f"| {thousands(steps) if steps is not None else '-'} "
-            f"| {f'{queries:g} ({yes:g})' if queries is not None else '-'} "
+            f"| {f'{queries:g} ({yes:g})' if queries is not None else '-'} | {person_minutes(rows)} "
             f"| {', '.join(sorted({row['device'] for row in rows}))} "
             f"| {', '.join(sorted({row['commit'] for row in rows}))} |"
         )
+    for preset, rows in (robot or {}).items():
+        hit = [row for row in rows if robot_within(row)]
+        steps = median([int(row["steps_to_target"]) for row in hit])
+        queries = median([int(row["queries"]) for row in hit])
+        lines.append(
+            f"| pusher stand-in, 5 Hz, {preset} | {robot_target_text(preset)} "
+            f"| {len(hit)} of {len(rows)} (seeds {', '.join(row['seed'] for row in rows)}) "
+            f"| {thousands(steps) if steps is not None else '-'} | {f'{queries:g}' if queries is not None else '-'} "
+            f"| {person_minutes(rows)} | {', '.join(sorted({row['device'] for row in rows}))} "
+            f"| {', '.join(sorted({row['commit'] for row in rows}))} |"
+        )
     return lines
+
+
+def person_minutes(rows: list[dict[str, str]]) -> str:
+    """The median of the rows' person minutes; "not recorded" where no row has them (rows written before)."""
+    minutes = [float(row["person_minutes"]) for row in rows if row.get("person_minutes")]
+    return f"{median(minutes):.1f}" if minutes else "not recorded"
+
+
+def robot_rows(path: Path = ROBOT_CSV) -> dict[str, list[dict[str, str]]]:
+    """robot.csv's rows by preset, by seed."""
+    if not path.exists():
+        return {}
+    by_preset: dict[str, list[dict[str, str]]] = {}
+    with path.open() as file:
+        for row in sorted(csv.DictReader(file), key=lambda row: (row["preset"], int(row["seed"]))):
+            by_preset.setdefault(row["preset"], []).append(row)
+    return by_preset
+
+
+def robot_within(row: dict[str, str]) -> bool:
+    """A stand-in seed reached its preset's target: ROBOT_RATE within the env steps, at most the queries."""
+    steps, queries = ROBOT_TARGETS[row["preset"]]
+    reached = row["steps_to_target"]
+    return bool(reached) and int(reached) <= steps and int(row["queries"]) <= queries
+
+
+def robot_target_text(preset: str) -> str:
+    steps, queries = ROBOT_TARGETS[preset]
+    return f"{ROBOT_RATE:.0%} within {thousands(steps)}, ≤ {queries} queries"
+
+
+def robot_lines(by_preset: dict[str, list[dict[str, str]]]) -> list[str]:
+    lines = [
+        "| preset | seed | steps to 90% | env steps run | queries | SAC updates per robot step | person minutes "
+        "| resets | robot's wait for them (min) | minutes | within the target | device | commit |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for preset, rows in by_preset.items():
+        for row in rows:
+            steps = f"{int(row['steps_to_target']):,}" if row["steps_to_target"] else "not reached"
+            wait = float(row["reset_wait_seconds"] or 0) / 60
+            lines.append(
+                f"| {preset} | {row['seed']} | {steps} | {int(row['env_steps']):,} | {row['queries']} "
+                f"| {row['updates_per_step']} | {row['person_minutes']} | {row['resets']} | {wait:.1f} "
+                f"| {row['wall_minutes']} | {'yes' if robot_within(row) else 'no'} | {row['device']} "
+                f"| {row['commit']} |"
+            )
+    if len(lines) == 2:
+        lines.append("| - | - | - | - | - | - | - | - | - | - | - | - | - |")
+    return lines
+
+
+def plot_robot() -> None:
+    """Each stand-in seed's eval success (by the env's ground truth) against env steps."""
+    series: dict[str, list[tuple[float, float]]] = {}
+    for path in sorted(ROBOT_FIGURES.glob("*.json")) if ROBOT_FIGURES.exists() else []:
+        figures = json.loads(path.read_text())
+        points = [(float(row["step"]), float(row["success_rate"])) for row in figures["evaluations"]]
+        series[f"{figures['preset']} seed {figures['seed']}"] = points
+    if series:
+        title = "pusher stand-in at 5 Hz: eval success by the env's ground truth, per seed"
+        line_plot(ROBOT_PLOT, series, title=title, y_range=(0.0, 1.0))
+        print(f"plot: {ROBOT_PLOT.relative_to(ROOT)}")
 
 
 def per_seed_lines(by_task: dict[str, list[dict[str, str]]]) -> list[str]:
@@ -126,11 +213,11 @@ def per_seed_lines(by_task: dict[str, list[dict[str, str]]]) -> list[str]:
 
 def generated_tables() -> dict[str, list[str]]:
     """Each generated table's lines, by name."""
-    rows, noisy = seed_rows(SEEDS_CSV), seed_rows(NOISE_CSV)
+    rows, noisy, robot = seed_rows(SEEDS_CSV), seed_rows(NOISE_CSV), robot_rows()
     compared, _, _ = comparison()
     return {
-        "summary": summary_lines(rows), "seeds": per_seed_lines(rows), "noise": per_seed_lines(noisy),
-        "compare": compared,
+        "summary": summary_lines(rows, robot), "seeds": per_seed_lines(rows), "noise": per_seed_lines(noisy),
+        "robot": robot_lines(robot), "compare": compared,
     }  # fmt: skip
 
 
@@ -176,6 +263,7 @@ def main() -> int:
     args = parser.parse_args()
     if not args.tables:
         plot_comparison()
+        plot_robot()
     return write_tables(check=args.check)
 
 

@@ -23,7 +23,8 @@ comes before every episode: a resetter thread presses Ready through POST /api/ru
   time until its actor reports the arm held safe.
 
 Each seed writes <out>/seed<N>/figures.json; every seed's row goes to --csv (docs/results/robot.csv), replacing
-an earlier row of the same seed and preset.
+an earlier row of the same seed and preset, and its figures (its evaluations: the curve of bench/results.py's plot)
+to robot/<preset>-seed<N>.json beside it. `--report` only does that for the seeds already run in --out.
 """
 
 import argparse
@@ -304,6 +305,17 @@ def write_rows(path: Path, rows: list[dict]) -> None:
             writer.writerow({name: row.get(name, "") for name in CSV_COLUMNS})
 
 
+def keep_figures(csv_path: Path, figures_file: Path) -> dict:
+    """A finished seed's figures: its row into the CSV, the figures beside it (robot/<preset>-seed<N>.json)."""
+    figures = json.loads(figures_file.read_text())
+    kept = csv_path.parent / "robot" / f"{figures['preset']}-seed{figures['seed']}.json"
+    kept.parent.mkdir(parents=True, exist_ok=True)
+    kept.write_text(json.dumps(figures, indent=2) + "\n")
+    row = csv_row(figures)
+    write_rows(csv_path, [row])
+    return row
+
+
 def csv_row(figures: dict) -> dict:
     row = {name: figures.get(name) for name in CSV_COLUMNS}
     row |= figures["effort"]
@@ -322,6 +334,7 @@ def main() -> int:
     parser.add_argument("--keep-going", action="store_true", help="train on past the target")
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "out" / "robot-standin")
     parser.add_argument("--csv", type=Path, default=ROBOT_CSV, help="the table every seed's row goes to")
+    parser.add_argument("--report", action="store_true", help="only write the rows of the seeds run in --out")
     parser.add_argument("--remote", action="store_true", help="the actor as its own `raq actor` (remote_actor)")
     parser.add_argument("--probes", action="store_true", help="Stop robot at STOP_AT; SIGKILL at the end")
     parser.add_argument("--seed", type=int, default=None, help=argparse.SUPPRESS)  # (one seed, in its own process;
@@ -336,6 +349,9 @@ def main() -> int:
         run_seed(args, args.seed, args.out / f"seed{args.seed}")
         return 0
     seeds, running, rows = parse_seeds(args.seeds), {}, []
+    if args.report:
+        rows = [keep_figures(args.csv, args.out / f"seed{seed}" / "figures.json") for seed in seeds]
+        seeds = []
     while seeds or running:
         while seeds and len(running) < args.parallel:
             seed = seeds.pop(0)
@@ -349,8 +365,7 @@ def main() -> int:
                 del running[seed]
                 figures_file = args.out / f"seed{seed}" / "figures.json"
                 if process.returncode == 0 and figures_file.exists():
-                    rows.append(csv_row(json.loads(figures_file.read_text())))
-                    write_rows(args.csv, rows[-1:])
+                    rows.append(keep_figures(args.csv, figures_file))
                 print(f"seed {seed} ended ({process.returncode})", flush=True)
         time.sleep(2.0)
     print("| seed | preset | steps to 90% | queries | updates per step | person minutes |")

@@ -38,6 +38,7 @@ import torch
 from contract.config import TrainConfig
 from contract.envs import display_image, encode_png, make_env, model_image, scale_action
 from contract.store import Store
+from contract.store.robot_holds import holder_name, robot_name
 from learner.actor_messages import (
     ActorError,
     ActorMessage,
@@ -53,6 +54,7 @@ from learner.actor_messages import (
 )
 from learner.exploration import EpisodeNoise, warm_up_action
 from learner.sac import SACAgent
+from robot.base import RobotEnv
 
 CONTROL_POLL_SECONDS = 0.05
 """How often the actor's control thread reads Stop, Resume and Ready from the store."""
@@ -68,6 +70,11 @@ START_SECONDS = 120.0
 """How long the actor may take to import its modules and make (connect to) its env."""
 FAILURE_FLUSH_SECONDS = 5.0
 """How long a failed actor's process waits for its traceback to reach the learner before it ends."""
+HOLD_RENEW_SECONDS = 0.25
+"""How often the control thread renews the actor's hold on its robot (the hold allows moves for
+MOVE_WITHIN_SECONDS after each renewal)."""
+TAKE_RETRY_SECONDS = 0.5
+"""How often an actor whose robot another run holds asks for it again."""
 
 
 class ActorState:
@@ -79,10 +86,16 @@ class ActorState:
     STOPPED = "stopped"
     LEARNER_GONE = "held safe: learner gone"
     DATABASE_GONE = "held safe: database unreachable"
+    CLAIM_LOST = "let go: the run was taken over"
     CLOSED = "closed"
 
+    @staticmethod
+    def robot_busy(run_id: int) -> str:
+        """Waiting for the robot, which another run's actor holds."""
+        return f"robot busy with run {run_id}"
 
-EXIT_REASONS = (ActorState.LEARNER_GONE, ActorState.CLOSED)
+
+EXIT_REASONS = (ActorState.LEARNER_GONE, ActorState.CLAIM_LOST, ActorState.CLOSED)
 """Why the actor exits: there is no learner to act for."""
 
 
@@ -179,6 +192,12 @@ class ActorLoop:
         self.state = ActorState.STARTING
         self.frame: np.ndarray | None = None
         self.started = False  # the learner sent the step its run is at
+        # a robot is driven by one actor, for its run's current claim (contract/store/robot_holds.py); another env
+        # (simulated, paced) has no hold
+        self.robot = robot_name(cfg.env_id) if isinstance(self.env.unwrapped, RobotEnv) else None
+        self.holder, self.claim = holder_name(), 0
+        self.holding = False  # this actor holds the robot (taken, and not let go)
+        self.hold_lost = False  # a renewal found the hold gone: the run's claim moved on, or another took it
         self.exit_reason: str | None = None  # the learner's pipe closed, or it closed the actor
         self.done = threading.Event()
         self.control_thread = threading.Thread(target=self._control_loop, name="actor-controls", daemon=True)
@@ -186,9 +205,15 @@ class ActorLoop:
     # ------------------------------------------------------------------ the control thread
     def _control_loop(self) -> None:
         """Read the controls; publish the state and, every FRAME_SECONDS, the newest camera frame."""
-        last_frame = 0.0
+        last_frame = last_renewal = 0.0
         while not self.done.is_set():
             now = time.monotonic()
+            if self.holding and not self.hold_lost and now - last_renewal >= HOLD_RENEW_SECONDS:
+                with contextlib.suppress(Exception):  # (the store away: the moves wait, and the watchdog holds)
+                    if not self.store.renew_robot(robot=self.robot, holder=self.holder):
+                        self.hold_lost = True
+                        self.wake.set()
+                    last_renewal = now
             png = None
             if self.frame is not None and now - last_frame >= FRAME_SECONDS:
                 png, last_frame = encode_png(self.frame), now
@@ -220,7 +245,7 @@ class ActorLoop:
             if isinstance(message, PolicyWeights):
                 self._load_policy(message.modules)
             elif isinstance(message, Start):
-                self.step, self.started = int(message.step), True
+                self.step, self.claim, self.started = int(message.step), int(message.claim), True
             elif isinstance(message, Close):
                 self.exit_reason = ActorState.CLOSED
             self.last_keepalive = time.monotonic()
@@ -229,6 +254,8 @@ class ActorLoop:
         """Why the arm must be held safe now, or None (a check of clocks and flags: it costs nothing)."""
         if self.exit_reason is not None:
             return self.exit_reason
+        if self.hold_lost:
+            return ActorState.CLAIM_LOST
         now, limit = time.monotonic(), float(self.config.watchdog_seconds)
         if now - self.controls.last_answer > limit:  # (first: an actor linked through the store loses both)
             return ActorState.DATABASE_GONE
@@ -253,6 +280,9 @@ class ActorLoop:
         finally:
             self.done.set()
             self.control_thread.join(timeout=1.0)
+            if self.holding:
+                with contextlib.suppress(Exception):
+                    self.store.release_robot(robot=self.robot, holder=self.holder)
             if self.owns_env:
                 with contextlib.suppress(Exception):
                     self.env.close()
@@ -266,6 +296,8 @@ class ActorLoop:
                 print(f"actor of run {self.settings.run_id}: ended before its first episode: {reason}", flush=True)
                 return
             time.sleep(0.01)
+        if not self._take_robot():
+            return
         obs = self._begin_episode()
         if obs is None:
             return
@@ -287,6 +319,8 @@ class ActorLoop:
             delay = self.pace.tick - time.monotonic()
             if delay > 0:  # (woken early by a stop: the hold is looked at again, then the rest is waited)
                 self.wake.wait(delay)
+                continue
+            if not self._may_move():  # (the step is sent late, once the hold says so, or never)
                 continue
             started = time.monotonic()
             raw, reward, terminated, truncated, info = self.env.step(scale_action(action, self.action_space))
@@ -322,6 +356,43 @@ class ActorLoop:
         eps = None if noise is None else noise[None]
         return self.agent.act_batch(obs[None], deterministic=False, generator=self.generator, noise=eps)[0]
 
+    # ------------------------------------------------------------------ the robot's hold
+    def _take_robot(self) -> bool:
+        """Hold the robot for the run's claim before its first move; while another run's actor holds it, say so
+        and wait, moving nothing. False: exit (the learner is gone, or the run was claimed again meanwhile)."""
+        if self.robot is None:
+            return True
+        while True:
+            self._read_learner()
+            if self._watchdog() in EXIT_REASONS:
+                return False
+            try:
+                answer = self.store.take_robot(
+                    robot=self.robot, run_id=self.settings.run_id, claim=self.claim, holder=self.holder
+                )
+            except Exception:  # (the store away: asked again)
+                answer = None
+            if answer is not None and answer.taken:
+                self.holding = True
+                return True
+            if answer is not None and answer.stale_claim:
+                self._stop_arm(ActorState.CLAIM_LOST)
+                return False
+            if answer is not None and answer.busy_with is not None:
+                self._set_state(ActorState.robot_busy(answer.busy_with))
+            self.wake.wait(TAKE_RETRY_SECONDS)
+
+    def _may_move(self) -> bool:
+        """The robot may move now: this actor holds it, for the run's current claim, renewed lately (always true
+        of an env that is no robot). Asked before every move; while it is false the move waits a poll."""
+        if self.robot is None:
+            return True
+        with contextlib.suppress(Exception):
+            if not self.hold_lost and self.store.holds_robot(robot=self.robot, holder=self.holder):
+                return True
+        self.wake.wait(CONTROL_POLL_SECONDS)
+        return False
+
     def _set_state(self, state: str) -> None:
         if state != self.state:
             self.state = state
@@ -350,12 +421,17 @@ class ActorLoop:
             self.wake.wait(self.period)
 
     def _stop_arm(self, state: str) -> None:
-        if not getattr(self.env.unwrapped, "stopped", False):
+        """Hold the arm (once the hold is lost, let go of it instead: another run's actor may drive it) and say so."""
+        if state == ActorState.CLAIM_LOST:
+            let_go = getattr(self.env.unwrapped, "let_go", None)
+            if let_go is not None:
+                let_go()
+        elif not getattr(self.env.unwrapped, "stopped", False):
             stop = getattr(self.env.unwrapped, "stop", None)
             if stop is not None:
                 stop()
         self._set_state(state)
-        if state in (ActorState.LEARNER_GONE, ActorState.DATABASE_GONE):
+        if state in (ActorState.LEARNER_GONE, ActorState.DATABASE_GONE, ActorState.CLAIM_LOST):
             print(f"actor of run {self.settings.run_id}: arm {state}", flush=True)
         with contextlib.suppress(Exception):  # the pages see it now (and the actor may exit next)
             self.store.report_actor(run_id=self.settings.run_id, state=state)
@@ -384,6 +460,9 @@ class ActorLoop:
         cfg, run_id = self.config, self.settings.run_id
         person = self.settings.person_reset or getattr(self.env.unwrapped, "needs_person_reset", False)
         while True:
+            while not self._may_move():
+                if self._watchdog() in EXIT_REASONS:
+                    return None
             raw, info = self.env.reset()  # the arm to its start pose, before anybody's hands are in the scene
             if not person:
                 break
@@ -504,9 +583,9 @@ class ActorProcess:
         """The display frame sent with the last message (the state of the newest observation)."""
         return self.display
 
-    def start(self, step: int) -> None:
-        """The run is at `step` (after its checkpoint): the actor may begin its first episode."""
-        self._send(Start(step))
+    def start(self, step: int, claim: int) -> None:
+        """The run is at `step` (after its checkpoint): the actor may begin its first episode, for `claim`."""
+        self._send(Start(step, claim))
 
     def send_policy(self, modules: dict[str, dict[str, Any]]) -> None:
         self._send(PolicyWeights(modules))

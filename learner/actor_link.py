@@ -158,7 +158,7 @@ class StoreLink:
                     self.inbox.put(KeepAlive())
                 if link.start_step is not None and not self.started:
                     self.started = True
-                    self.inbox.put(Start(link.start_step))
+                    self.inbox.put(Start(link.start_step, self.store.run_claim(run_id=self.run_id)))
                 if link.policy_version > self.policy_version:
                     state = load_checkpoint(self.policy_url)
                     if state is not None:
@@ -305,8 +305,9 @@ class RemoteActor:
         """The display frame sent with the last message (the state of the newest observation)."""
         return self.display
 
-    def start(self, step: int) -> None:
-        """The run is at `step` (after its checkpoint): the actor may begin its first episode."""
+    def start(self, step: int, claim: int) -> None:
+        """The run is at `step` (after its checkpoint): the actor may begin its first episode (it reads the run's
+        claim when it sees the start: the one this learner holds)."""
         self.store.start_actor_link(run_id=self.run_id, start_step=step)
 
     def send_policy(self, modules: dict[str, dict[str, Any]]) -> None:

@@ -79,10 +79,12 @@ ActorMessage = EpisodeStart | Transition | StateChange
 # ====================================================================== the learner's
 @dataclass
 class Start:
-    """The run is at `step` (its checkpoint read): the actor may begin its first episode."""
+    """The run is at `step` (its checkpoint read): the actor may begin its first episode, for the run's `claim`
+    (its learner's: the robot moves only while that is the run's current claim)."""
 
     kind: ClassVar[str] = "start"
     step: int
+    claim: int
 
 
 @dataclass
@@ -142,8 +144,8 @@ class ActorHandle(Protocol):
         """The display frame sent with the last message (the state of the newest observation)."""
         ...
 
-    def start(self, step: int) -> None:
-        """The run is at `step` (after its checkpoint): the actor may begin its first episode."""
+    def start(self, step: int, claim: int) -> None:
+        """The run is at `step` (after its checkpoint): the actor may begin its first episode, for `claim`."""
         ...
 
     def send_policy(self, modules: dict[str, dict[str, Any]]) -> None:

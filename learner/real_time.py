@@ -42,6 +42,7 @@ class RealTimeRunner:
         checkpoint_file: Path | str,
     ) -> None:  # fmt: skip
         execution = config.execution
+        self.claim = store.run_claim(run_id=control.run_id)  # (the learner's, read as it set the run up)
         self.actor: ActorHandle
         if execution.remote_actor:  # on the robot's host: the env is neither made nor imported here
             self.actor = RemoteActor(
@@ -76,7 +77,7 @@ class RealTimeRunner:
         """The actor may begin: it resets the scene itself (a person first, when needed)."""
         counters = self.trainer.counters
         self.paced_from = (counters.step, counters.total_updates)
-        self.actor.start(counters.step)
+        self.actor.start(counters.step, self.claim)
         self.begin_episode(self.episode)
 
     def begin_episode(self, episode: EnvEpisode) -> None:

@@ -144,6 +144,10 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self.stopped = True
         self.hold_safe()
 
+    def let_go(self) -> None:
+        """Refuse further actions without touching the arm, close() included: another process drives it now."""
+        self.stopped = True
+
     def render(self) -> np.ndarray | None:
         """The last camera frame, aspect kept, for a person (queries, rollouts, the live view)."""
         frame = self.last_frame if self.last_frame is not None else self.read_camera()

@@ -33,7 +33,7 @@ def test_a_late_step_is_sent_late_and_never_followed_by_an_early_one(
         config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=False,
     ))  # fmt: skip
     try:
-        actor.start(0)
+        actor.start(0, 0)
         while sum(what == "action" for what, _ in recorded(log)) < 36:
             actor.next_message(0.1)  # (the learner's part: its steps are taken, its keep-alives sent)
     finally:

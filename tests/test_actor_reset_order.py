@@ -47,7 +47,7 @@ def test_the_arm_goes_home_before_the_person_is_asked_and_stop_resume_returns_to
         config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=True,
     ))  # fmt: skip
     try:
-        actor.start(0)
+        actor.start(0, 0)
         # the arm to its start pose first, then the card asks the person
         wait_for(lambda: store.robot_status(run_id=run_id).reset_needed, "the reset card")
         assert state() == ActorState.WAITING_FOR_RESET

@@ -62,6 +62,19 @@ def test_a_deleted_runs_id_is_never_given_again(client: TestClient, store: Store
     assert created.json()["id"] == ids[-1] + 1
 
 
+def _run_in_an_old_schema(store: Store, name: str) -> int:
+    """A run as a store of the schema's own version made it (today's store writes newer columns)."""
+    with store.engine.begin() as connection:
+        return connection.execute(
+            sa.text(
+                "INSERT INTO runs (name, env_id, algorithm, config, seed, status, status_reason, stop_requested, "
+                "step, total_steps, priority, archived, created_at) VALUES (:name, 'VisualPusher-v0', 'vice_raq', "
+                "'{}', 0, 'queued', '', 0, 0, 25000, 0, 0, CURRENT_TIMESTAMP) RETURNING id"
+            ),
+            {"name": name},
+        ).scalar_one()
+
+
 def test_run_ids_are_not_reused_in_a_database_made_before_migration_0007(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """Migration 0007 rebuilds the runs table with AUTOINCREMENT and keeps what the runs own."""
     from app.migrate import upgrade
@@ -69,11 +82,18 @@ def test_run_ids_are_not_reused_in_a_database_made_before_migration_0007(tmp_pat
     url = f"sqlite:///{tmp_path / 'before.sqlite3'}"
     upgrade(url, "0006_goal_set_env")
     old = Store(url)
-    first, second = _run(old, "first"), _run(old, "second")
+    first, second = _run_in_an_old_schema(old, "first"), _run_in_an_old_schema(old, "second")
     _ask_in_an_old_schema(old, first)
-    old.record_metrics(run_id=second, step=10, values={"eval/return": 1.0})
-    old.delete_run(run_id=second)
-    reused = _run(old, "made before the migration")
+    with old.engine.begin() as connection:
+        connection.execute(
+            sa.text(
+                "INSERT INTO events (run_id, level, message, created_at) VALUES (:run_id, 'info', 'started', "
+                "CURRENT_TIMESTAMP)"
+            ),
+            {"run_id": first},
+        )
+        connection.execute(sa.text("DELETE FROM runs WHERE id = :id"), {"id": second})
+    reused = _run_in_an_old_schema(old, "made before the migration")
     assert reused == second  # what 0006's table did
     old.dispose()
     upgrade(url)

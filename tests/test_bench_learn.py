@@ -117,10 +117,10 @@ def test_the_seeds_tables_are_made_from_the_csv(tmp_path: Path) -> None:
         writer.writerows(rows)
     by_task = seed_rows(path)
     summary = summary_lines(by_task)
-    pusher = "| pusher | 90% within 20K, median ≤ 12K, ≤ 25 queries | 2 of 3 (seeds 0, 1, 2) | 10K | 2.5 (2) | cpu |"
-    assert f"{pusher} bbb |" in summary
-    assert "| door | 90% within 100K, ≤ 50 queries | 0 of 1 (seeds 0) | - | - | cpu | bbb |" in summary
-    assert "| picker | 80% within 100K, ≤ 50 queries | not measured | - | - | - | - |" in summary
+    pusher = "| pusher | 90% within 20K, median ≤ 12K, ≤ 25 queries | 2 of 3 (seeds 0, 1, 2) | 10K | 2.5 (2) |"
+    assert f"{pusher} not recorded | cpu | bbb |" in summary
+    assert "| door | 90% within 100K, ≤ 50 queries | 0 of 1 (seeds 0) | - | - | not recorded | cpu | bbb |" in summary
+    assert "| picker | 80% within 100K, ≤ 50 queries | not measured | - | - | - | - | - |" in summary
     seeds = per_seed_lines(by_task)
     assert "| pusher | 1 | 16,000 | 16,000 | 30 (9) | 15.0 | no | cpu | bbb |" in seeds
     assert "| door | 0 | not reached | 100,000 | 50 (0) | 130.0 | no | cpu | bbb |" in seeds
@@ -184,3 +184,36 @@ def test_each_seeds_row_holds_what_its_run_cost_the_person_and_old_rows_still_re
     assert [row["seed"] for row in by_task["pusher"]] == ["0", "1"]
     assert "| pusher | 0 | 12,000 | 12,000 | 3 (2) | 11.0 | yes | cpu | aaa |" in per_seed_lines(by_task)
     assert any(line.startswith("| pusher |") and "2 of 2" in line for line in summary_lines(by_task))
+
+
+def test_the_robot_table_is_made_from_robot_csv(tmp_path: Path) -> None:
+    """bench/robot_standin.py's rows (one per seed and preset, a newer row replacing its seed's) make the robot
+    table and the summary's stand-in row: a seed counts when it reached 90% within its preset's steps and queries,
+    and the person's minutes are the median of the seeds'."""
+    sys.path.insert(0, str(ROOT))
+    from bench.results import robot_lines, robot_rows, summary_lines
+    from bench.robot_standin import CSV_COLUMNS, write_rows
+
+    def row(seed: int, steps: object, queries: int, minutes: float, commit: str = "ccc") -> dict[str, object]:
+        values = dict.fromkeys(CSV_COLUMNS, "")
+        values |= {
+            "task": "pusher-standin", "seed": seed, "preset": "cpu_robot", "steps_to_target": steps,
+            "env_steps": steps or 15_000, "queries": queries, "updates_per_step": 2.0, "wall_minutes": 40.0,
+            "device": "cpu", "commit": commit, "person_minutes": minutes, "resets": 100, "reset_wait_seconds": 60.0,
+        }  # fmt: skip
+        return values
+
+    path = tmp_path / "robot.csv"
+    write_rows(path, [row(0, "", 50, 9.0, commit="old")])
+    write_rows(path, [row(0, 12_000, 48, 3.0), row(1, 14_000, 51, 5.0), row(2, 16_000, 40, 7.0)])
+    by_preset = robot_rows(path)
+    assert [r["seed"] for r in by_preset["cpu_robot"]] == ["0", "1", "2"]  # seed 0's old row replaced
+    lines = robot_lines(by_preset)
+    assert "| cpu_robot | 0 | 12,000 | 12,000 | 48 | 2.0 | 3.0 | 100 | 1.0 | 40.0 | yes | cpu | ccc |" in lines
+    assert any(line.startswith("| cpu_robot | 1 | 14,000 |") and "| no |" in line for line in lines)  # 51 queries
+    assert any(line.startswith("| cpu_robot | 2 | 16,000 |") and "| no |" in line for line in lines)  # past 15K
+    summary = summary_lines({}, by_preset)
+    assert (
+        "| pusher stand-in, 5 Hz, cpu_robot | 90% within 15K, ≤ 50 queries | 1 of 3 (seeds 0, 1, 2) | 12K | 48 "
+        "| 5.0 | cpu | ccc |"
+    ) in summary

@@ -434,10 +434,13 @@ def test_answer_numbers_go_on_from_the_answers_given_before_the_counter_existed(
     """Migration 0005 starts the answer counter at the highest answer_seq already given."""
     url = f"sqlite:///{tmp_path / 'old.sqlite3'}"
     upgrade(url, "0004_login_failures")
-    store = Store(url)
-    run_id = make_run(store)
-    store.dispose()
-    with sa.create_engine(url).begin() as connection:  # questions as 0004's store posted them
+    run_id = 1
+    with sa.create_engine(url).begin() as connection:  # a run and its questions as 0004's store wrote them
+        connection.execute(sa.text(
+            "INSERT INTO runs (id, name, env_id, algorithm, config, seed, status, status_reason, stop_requested, "
+            "step, total_steps, priority, archived, created_at) VALUES (1, 'r', 'VisualPusher-v0', 'vice_raq', "
+            "'{}', 3, 'queued', '', 0, 0, 1000, 0, 0, CURRENT_TIMESTAMP)"
+        ))  # fmt: skip
         ids = [
             connection.execute(
                 sa.text(

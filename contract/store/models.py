@@ -145,6 +145,8 @@ class Run(Base):
     phase: Mapped[str | None] = mapped_column(String(30))
     worker: Mapped[str | None] = mapped_column(String(200))
     heartbeat_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    # how many times a learner has claimed the run: a takeover increases it, and an actor acts only for the current
+    claim: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     step: Mapped[int] = mapped_column(BigInteger, default=0)
     total_steps: Mapped[int] = mapped_column(BigInteger, default=0)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
@@ -303,6 +305,20 @@ class RobotControl(Base):
     learner_closed: Mapped[bool] = mapped_column(Boolean, default=False, server_default=sa_false())
     actor_spaces: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class RobotHold(Base):
+    """Which run's actor drives a robot (an env id on its host): one row per robot, renewed by that actor while it
+    holds the robot, for the run's claim it was taken with. Times are the database's clock."""
+
+    __tablename__ = "robot_holds"
+
+    robot: Mapped[str] = mapped_column(String(300), primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"))
+    claim: Mapped[int] = mapped_column(Integer)
+    holder: Mapped[str] = mapped_column(String(300))
+    """The actor process that holds it ("pid@host")."""
+    renewed_at: Mapped[datetime] = mapped_column(UTCDateTime)
 
 
 class ActorMessage(Base):

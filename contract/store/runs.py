@@ -214,6 +214,7 @@ class RunStore(StoreBase):
                         status_reason="",
                         phase=RunPhase.SETTING_UP,
                         worker=worker,
+                        claim=Run.claim + 1,
                         heartbeat_at=now,
                         started_at=func.coalesce(Run.started_at, now),
                     )

@@ -1,0 +1,122 @@
+"""Robot holds: at most one actor drives a robot, and only for the run's current claim.
+
+A robot is an env id on its host (`robot_name`). The actor that drives it takes its row (take_robot) before the
+first move, for the claim its learner holds the run with, and renews the row while it holds the robot
+(renew_robot, from its control thread); before each move it checks that it still holds it (holds_robot). A
+learner that takes a run over increases the run's claim (Store.claim_next_run): from then on the old actor's
+renewals and checks fail, and it sends nothing more. Another run of the same robot takes the row only once it is
+released or HOLD_LEASE_SECONDS old, so the old actor has stopped (its check allows a move only within
+MOVE_WITHIN_SECONDS of its last renewal). Times are the database's clock, never a host's.
+"""
+
+import os
+import socket
+from dataclasses import dataclass
+
+from sqlalchemy import delete, insert, or_, select, update
+from sqlalchemy.exc import IntegrityError
+
+from contract.store.base import StoreBase
+from contract.store.models import RobotHold, Run
+
+HOLD_LEASE_SECONDS = 3.0
+"""A robot's hold not renewed for this long is free for another run's actor."""
+MOVE_WITHIN_SECONDS = 1.0
+"""An actor moves the robot only while its hold was renewed within this many seconds (well inside the lease)."""
+ROBOT_HOST_VARIABLE = "RAQ_ROBOT_HOST"
+"""The host part of a robot's name, where one machine drives robots that are not one (default: the hostname)."""
+
+
+def robot_name(env_id: str) -> str:
+    """The robot an env id drives on this host: "<host>/<env id>"."""
+    return f"{os.environ.get(ROBOT_HOST_VARIABLE) or socket.gethostname()}/{env_id}"
+
+
+def holder_name() -> str:
+    """This process as a holder: "<pid>@<host>"."""
+    return f"{os.getpid()}@{socket.gethostname()}"
+
+
+@dataclass(frozen=True)
+class RobotTake:
+    """The answer to take_robot."""
+
+    taken: bool
+    busy_with: int | None = None
+    """The run whose actor holds the robot (None: taken, or the claim is stale)."""
+    stale_claim: bool = False
+    """The run has been claimed again since: this actor must never drive it."""
+
+
+class RobotHoldStore(StoreBase):
+    def run_claim(self, *, run_id: int) -> int:
+        """The run's current claim."""
+        return int(self._column_of(Run.claim, run_id, "run"))
+
+    def take_robot(self, *, robot: str, run_id: int, claim: int, holder: str) -> RobotTake:
+        """Hold `robot` for the run at `claim`: when nobody holds it, `holder` does already, or the hold is
+        HOLD_LEASE_SECONDS old. Else the run that holds it."""
+        with self.writing() as session:
+            if session.scalar(select(Run.claim).where(Run.id == run_id)) != claim:
+                return RobotTake(taken=False, stale_claim=True)
+            values = {"run_id": run_id, "claim": claim, "holder": holder, "renewed_at": self._db_now()}
+            taken = session.execute(
+                update(RobotHold)
+                .where(
+                    RobotHold.robot == robot,
+                    or_(RobotHold.holder == holder, RobotHold.renewed_at < self._db_now(HOLD_LEASE_SECONDS)),
+                )
+                .values(**values)
+            ).rowcount
+            if taken:
+                return RobotTake(taken=True)
+            busy_with = session.scalar(select(RobotHold.run_id).where(RobotHold.robot == robot))
+            if busy_with is not None:
+                return RobotTake(taken=False, busy_with=int(busy_with))
+        try:
+            with self.writing() as session:
+                session.execute(insert(RobotHold).values(robot=robot, **values))
+        except IntegrityError:  # (another actor made the row first: it holds the robot)
+            return self.take_robot(robot=robot, run_id=run_id, claim=claim, holder=holder)
+        return RobotTake(taken=True)
+
+    def renew_robot(self, *, robot: str, holder: str) -> bool:
+        """Renew the hold `holder` has on `robot`, while its claim is the run's current one. False: it holds the
+        robot no longer (released, taken over, or its run claimed again)."""
+        current = select(Run.claim).where(Run.id == RobotHold.run_id).scalar_subquery()
+        with self.autocommitting() as session:
+            renewed = session.execute(
+                update(RobotHold)
+                .where(RobotHold.robot == robot, RobotHold.holder == holder, RobotHold.claim == current)
+                .values(renewed_at=self._db_now())
+            ).rowcount
+        return bool(renewed)
+
+    def holds_robot(self, *, robot: str, holder: str) -> bool:
+        """`holder` may move `robot` now: it holds it for the run's current claim, renewed within
+        MOVE_WITHIN_SECONDS."""
+        with self.reading() as session:
+            row = session.execute(
+                select(RobotHold.robot)
+                .join(Run, Run.id == RobotHold.run_id)
+                .where(
+                    RobotHold.robot == robot, RobotHold.holder == holder, RobotHold.claim == Run.claim,
+                    RobotHold.renewed_at >= self._db_now(MOVE_WITHIN_SECONDS),
+                )
+            ).first()  # fmt: skip
+        return row is not None
+
+    def release_robot(self, *, robot: str, holder: str) -> None:
+        """`holder` lets go of `robot` (nothing when it holds it no longer)."""
+        with self.writing() as session:
+            session.execute(delete(RobotHold).where(RobotHold.robot == robot, RobotHold.holder == holder))
+
+    def robot_holder(self, *, robot: str) -> int | None:
+        """The run whose actor holds `robot` now (within its lease), or None."""
+        with self.reading() as session:
+            run_id = session.scalar(
+                select(RobotHold.run_id).where(
+                    RobotHold.robot == robot, RobotHold.renewed_at >= self._db_now(HOLD_LEASE_SECONDS)
+                )
+            )
+        return None if run_id is None else int(run_id)

@@ -1,0 +1,100 @@
+"""One robot, one driver: the store's robot holds and the claim a takeover increases (contract/store/robot_holds.py)."""
+
+import threading
+
+from sqlalchemy import update
+
+from contract.store import Store
+from contract.store.models import RobotHold, Run
+from contract.store.robot_holds import HOLD_LEASE_SECONDS, MOVE_WITHIN_SECONDS, robot_name
+
+ROBOT = robot_name("robot.standin:PusherStandIn-v0")
+
+
+def claimed_run(store: Store, name: str) -> tuple[int, int]:
+    """A run claimed by a learner: its id and claim."""
+    run = store.create_run(name=name, env_id="robot.standin:PusherStandIn-v0", algorithm="vice_raq", config={})
+    claimed = store.claim_next_run(worker=f"learner-{name}")
+    assert claimed is not None and claimed.id == run.id
+    return run.id, claimed.claim
+
+
+def age_hold(store: Store, seconds: float) -> None:
+    """The hold as if last renewed `seconds` ago (by the database's clock)."""
+    with store.writing() as session:
+        session.execute(update(RobotHold).values(renewed_at=store._db_now(seconds)))
+
+
+def test_a_claim_grows_with_each_takeover(store: Store) -> None:
+    run_id, claim = claimed_run(store, "a")
+    assert claim == 1
+    with store.writing() as session:  # its learner stopped beating a while ago
+        session.execute(update(Run).where(Run.id == run_id).values(heartbeat_at=store._db_now(120)))
+    taken = store.claim_next_run(worker="learner-b")
+    assert taken is not None and taken.id == run_id and taken.claim == 2
+    assert store.run_claim(run_id=run_id) == 2
+
+
+def test_a_second_run_of_the_robot_waits_until_the_first_lets_go(store: Store) -> None:
+    first, first_claim = claimed_run(store, "first")
+    second, second_claim = claimed_run(store, "second")
+    assert store.take_robot(robot=ROBOT, run_id=first, claim=first_claim, holder="1@host").taken
+    busy = store.take_robot(robot=ROBOT, run_id=second, claim=second_claim, holder="2@host")
+    assert not busy.taken and busy.busy_with == first
+    assert store.robot_holder(robot=ROBOT) == first
+    assert store.holds_robot(robot=ROBOT, holder="1@host") and not store.holds_robot(robot=ROBOT, holder="2@host")
+    # another robot on the same host is another row
+    assert store.take_robot(robot=robot_name("other:Arm-v0"), run_id=second, claim=second_claim, holder="2@host").taken
+    store.release_robot(robot=ROBOT, holder="2@host")  # (not its hold: nothing changes)
+    assert store.robot_holder(robot=ROBOT) == first
+    store.release_robot(robot=ROBOT, holder="1@host")
+    assert store.take_robot(robot=ROBOT, run_id=second, claim=second_claim, holder="2@host").taken
+    assert not store.holds_robot(robot=ROBOT, holder="1@host")
+
+
+def test_a_hold_not_renewed_for_its_lease_is_free_and_its_old_holder_may_not_move(store: Store) -> None:
+    first, first_claim = claimed_run(store, "first")
+    second, second_claim = claimed_run(store, "second")
+    assert store.take_robot(robot=ROBOT, run_id=first, claim=first_claim, holder="1@host").taken
+    age_hold(store, MOVE_WITHIN_SECONDS + 0.5)
+    assert not store.holds_robot(robot=ROBOT, holder="1@host")  # too old to move on, still not free
+    assert not store.take_robot(robot=ROBOT, run_id=second, claim=second_claim, holder="2@host").taken
+    assert store.renew_robot(robot=ROBOT, holder="1@host")
+    assert store.holds_robot(robot=ROBOT, holder="1@host")
+    age_hold(store, HOLD_LEASE_SECONDS + 0.5)
+    assert store.take_robot(robot=ROBOT, run_id=second, claim=second_claim, holder="2@host").taken
+    assert not store.renew_robot(robot=ROBOT, holder="1@host")
+    assert not store.holds_robot(robot=ROBOT, holder="1@host")
+
+
+def test_an_actor_of_a_claim_taken_over_can_neither_renew_nor_take(store: Store) -> None:
+    run_id, claim = claimed_run(store, "a")
+    assert store.take_robot(robot=ROBOT, run_id=run_id, claim=claim, holder="old@host").taken
+    with store.writing() as session:
+        session.execute(update(Run).where(Run.id == run_id).values(heartbeat_at=store._db_now(120)))
+    new_claim = store.claim_next_run(worker="learner-b").claim
+    assert not store.holds_robot(robot=ROBOT, holder="old@host")
+    assert not store.renew_robot(robot=ROBOT, holder="old@host")
+    assert store.take_robot(robot=ROBOT, run_id=run_id, claim=claim, holder="old@host").stale_claim
+    # the new learner's actor waits out the old actor's lease: it may still be finishing its last move
+    assert store.take_robot(robot=ROBOT, run_id=run_id, claim=new_claim, holder="new@host").busy_with == run_id
+    age_hold(store, HOLD_LEASE_SECONDS + 0.5)
+    assert store.take_robot(robot=ROBOT, run_id=run_id, claim=new_claim, holder="new@host").taken
+
+
+def test_racing_takes_leave_one_holder(store: Store) -> None:
+    holders = 8
+    run_id, claim = claimed_run(store, "a")
+    results: list[bool] = []
+    barrier = threading.Barrier(holders)
+
+    def take(index: int) -> None:
+        barrier.wait()
+        results.append(store.take_robot(robot=ROBOT, run_id=run_id, claim=claim, holder=f"{index}@host").taken)
+
+    threads = [threading.Thread(target=take, args=(index,)) for index in range(holders)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=10)
+    assert results.count(True) == 1
