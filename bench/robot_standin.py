@@ -7,9 +7,10 @@ real-time actor, trained with a robot preset, reset by an automated person throu
     python bench/robot_standin.py --seeds 1 --steps 1600 --remote --probes   # `raq actor` (remote_actor), probed
 
 Each seed starts `raq serve`, `raq oracle` and one learner (`raq learn --once`) on a fresh SQLite database, with
-80 goal photos from `raq goals` at the preset's image size and the robot preset for the learner's device
-(`contract.config.robot_preset_for`: `TrainConfig.cpu_robot()` on a CPU, `real_robot()` on a GPU; `--preset`
-picks another, `--set FIELD=VALUE` changes single fields) on `robot.standin:PusherStandIn-v0`. A person's reset
+80 goal photos from the stand-in's own camera (`robot.standin.goal_photos`, kept as the Camera panel keeps them)
+and the robot preset for the learner's device (`contract.config.robot_preset_for`: `TrainConfig.cpu_robot()` on
+a CPU, `real_robot()` on a GPU; `--preset` picks another, `--set FIELD=VALUE` changes single fields) on
+`robot.standin:PusherStandIn-v0`. A person's reset
 comes before every episode: a resetter thread presses Ready through POST /api/runs/{id}/robot/ready, as
 `raq oracle` answers the questions. Meanwhile it measures:
 
@@ -29,6 +30,7 @@ to robot/<preset>-seed<N>.json beside it. `--report` only does that for the seed
 
 import argparse
 import csv
+import io
 import json
 import os
 import signal
@@ -44,13 +46,13 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from app.demo import add_simulated_goal_set  # noqa: E402
 from app.migrate import upgrade  # noqa: E402
 from bench.learn import free_port, parse_overrides, wait_for_health  # noqa: E402
 from bench.processes import stop_all  # noqa: E402
 from bench.seeds import current_commit, parse_seeds  # noqa: E402
 from contract.config import REAL_ROBOT_GOAL_IMAGES, ROBOT_PRESETS, TrainConfig, robot_preset_for  # noqa: E402
 from contract.effort import EFFORT_COLUMNS, run_effort  # noqa: E402
+from contract.images import prepare_upload  # noqa: E402
 from contract.learner_pace import PACE_METRIC  # noqa: E402
 from contract.store import Store  # noqa: E402
 
@@ -161,6 +163,29 @@ def seed_config(args: argparse.Namespace, seed: int) -> tuple[str, TrainConfig]:
     return preset, config
 
 
+def add_camera_goal_set(store: Store, *, count: int, image_size: int) -> int:
+    """A goal set of `count` photos from the stand-in's own camera (robot.standin.goal_photos), made as the
+    Camera panel's capture makes them (the model's copy centre-cropped and resized as every observation is)."""
+    from PIL import Image  # noqa: PLC0415
+
+    from robot.standin import goal_photos  # noqa: PLC0415
+
+    goal_set = store.create_goal_set(name="stand-in goals", image_size=image_size, env_id=STANDIN)
+    for index, frame in enumerate(goal_photos(count)):
+        buffer = io.BytesIO()
+        Image.fromarray(frame).save(buffer, format="PNG")
+        image = prepare_upload(
+            buffer.getvalue(), filename=f"camera-{index:02d}.png", model_size=image_size,
+            max_bytes=len(buffer.getvalue()), max_pixels=frame.shape[0] * frame.shape[1],
+        )  # fmt: skip
+        store.add_goal_example(
+            goal_set_id=goal_set.id, filename=image.filename, original=image.original,
+            original_media_type=image.media_type, width=image.width, height=image.height, model_png=image.model_png,
+            display_png=image.display_png, source="camera",
+        )  # fmt: skip
+    return goal_set.id
+
+
 def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
     """One seed's run end to end; its figures."""
     data_dir = out / "data"
@@ -173,9 +198,7 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
     data_dir.mkdir()
     upgrade(database_url)
     store = Store(database_url)
-    goal_set_id = add_simulated_goal_set(
-        store, task="pusher", name="stand-in goals", count=REAL_ROBOT_GOAL_IMAGES, image_size=config.image_size
-    )
+    goal_set_id = add_camera_goal_set(store, count=REAL_ROBOT_GOAL_IMAGES, image_size=config.image_size)
     run = store.create_run(
         name=f"stand-in seed {seed}", env_id=STANDIN, algorithm=config.algorithm, config=config.to_dict(),
         seed=seed, goal_set_id=goal_set_id, total_steps=config.total_steps,

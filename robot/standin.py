@@ -11,6 +11,7 @@ import gymnasium as gym
 import numpy as np
 
 from robot.base import RobotEnv
+from sim.goals import pusher_success_state
 from sim.pusher import VisualPusherEnv
 
 BAND = 128
@@ -59,6 +60,25 @@ class PusherStandIn(RobotEnv):
     def close(self) -> None:
         super().close()
         self.sim.close()
+
+
+def goal_photos(count: int, *, seed: int = 0, camera_size: int = 384) -> list[np.ndarray]:
+    """`count` camera frames of success states (the mug on the coaster, the hand near it), reproducible from `seed`:
+    the goal photos a person takes with the stand-in's own camera, as a lab takes them with its robot's."""
+    rng = np.random.default_rng(seed)
+    robot = PusherStandIn(camera_size=camera_size)
+    try:
+        frames: list[np.ndarray] = []
+        for attempt in range(5 * count):
+            if len(frames) == count:
+                return frames
+            robot.sim.reset(seed=seed * 100_003 + attempt)
+            pusher_success_state(robot.sim, rng)
+            if robot.sim.get_info()["success"]:
+                frames.append(robot.read_camera())
+        raise RuntimeError(f"made only {len(frames)} of {count} goal photos")
+    finally:
+        robot.close()
 
 
 if "PusherStandIn-v0" not in gym.registry:

@@ -40,7 +40,7 @@ class GoalExample:
     info: dict[str, Any] = field(default_factory=dict)
 
 
-def _pusher_success_state(env: VisualPusherEnv, rng: np.random.Generator) -> None:
+def pusher_success_state(env: VisualPusherEnv, rng: np.random.Generator) -> None:
     """Mug within 1.5 cm of the coaster's centre, any yaw; hand 0.2-4 cm behind it, on the side it pushed from."""
     goal = env.goal_pos
     offset_radius, offset_angle = rng.uniform(0.0, 0.015), rng.uniform(-np.pi, np.pi)
@@ -104,7 +104,7 @@ def make_goal_examples(
             env.reset(seed=seed * 100_003 + attempt)
             task_env = env.unwrapped
             if isinstance(task_env, VisualPusherEnv):
-                _pusher_success_state(task_env, rng)
+                pusher_success_state(task_env, rng)
             elif not _scripted_success(env, rng):
                 continue
             info = task_env.get_info()

@@ -14,7 +14,7 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from contract.store import Store
-from sim.goals import _pusher_success_state
+from sim.goals import pusher_success_state
 from sim.pusher import VisualPusherEnv
 
 SIDE = 256
@@ -38,7 +38,7 @@ def _photos(count: int) -> tuple[list[bytes], list[bytes]]:
     side, top = [], []
     try:
         for _ in range(count):
-            _pusher_success_state(env, rng)
+            pusher_success_state(env, rng)
             mujoco.mj_forward(env.model, env.data)
             side.append(_png(env.render_image(SIDE)))
             renderer.update_scene(env.data, camera=above)
