@@ -7,11 +7,14 @@ learner can make) whose class, read from gymnasium's registry entry point withou
 
 One open env per env id, made on first use and shared by every request. Each is owned by its own thread: a
 rendering context (MuJoCo's EGL) or a camera handle belongs to the thread that opened it, and the frames are read
-with `read_camera()` alone, never `reset()` (that would move the arm). A camera is read at most every
-FRAME_INTERVAL_S (requests in between get the last frame), closed after IDLE_CLOSE_S without a request (so a
-run's actor can open it), and all are closed by `close_cameras()` (registered with `atexit`; the app's lifespan
-may call it too). When a run's actor drives the same env (Store.robot_runs lists it), the frame it published is
-used and this server's env is closed: a real camera opens in one process only.
+with `read_camera()` alone: the server never calls `reset`, `send_action` or `hold_safe`, and lets go of the env
+(`RobotEnv.let_go`) before it closes it, so that closing holds nothing either. A camera is read at most every
+FRAME_INTERVAL_S (requests in between get the last frame), closed after IDLE_CLOSE_S without a request, and all
+are closed by `close_cameras()` (registered with `atexit`; the app's lifespan may call it too).
+
+A camera opens in one process at a time (most USB cameras): once a learner claims a run of the env
+(Store.claimed_run_of), this server closes its env at the next request, before that run's actor opens the
+camera, and serves the frames the actor publishes (Store.robot_runs) until the run ends.
 """
 
 import atexit
@@ -229,6 +232,9 @@ class CameraSource:
                 job.set_result(result)
         finally:
             if env is not None:
+                let_go = getattr(env.unwrapped, "let_go", None)
+                if let_go is not None:  # (this process never drove the arm: closing must not hold it either)
+                    let_go()
                 env.close()
 
     def _actor_frame(self, env_id: str, store: Store) -> CameraFrame | str | None:
@@ -246,7 +252,8 @@ class CameraSource:
 
 def _published_frame(env_id: str, store: Store) -> CameraFrame | str | None:
     """The newest frame of env_id that a run's actor published, while the store lists that actor as driving its
-    robot (Store.robot_runs); a reason when it has published none yet; None when no actor drives env_id."""
+    robot (Store.robot_runs); a reason while a run of env_id is claimed and its actor has published none yet; None
+    when no run drives env_id (this server may open the camera)."""
     for robot in store.robot_runs():
         try:
             if store.get_run(run_id=robot.run_id).env_id != env_id:
@@ -257,6 +264,9 @@ def _published_frame(env_id: str, store: Store) -> CameraFrame | str | None:
         if published is None:
             return f"{env_id}: run {robot.run_id}'s actor drives this robot and has published no camera frame yet"
         return CameraFrame(env_id=env_id, png=published[0], source=f"run {robot.run_id}")
+    claimed = store.claimed_run_of(env_id=env_id)
+    if claimed is not None:
+        return f"{env_id}: run {claimed}'s actor is taking the camera; its frames follow once it has started"
     return None
 
 

@@ -1,14 +1,24 @@
 """Env previews: an env's first frames (the observation as the model sees it and the display render), made with
 gymnasium in this process (no torch), one env at a time on one thread of their own, kept in a bounded cache; and the
-envs the New run form suggests."""
+envs the New run form suggests.
+
+A robot env is never made or reset here (a reset moves the arm): its preview is its camera's current frame, read
+as the goal-set page's live view reads it (app/camera.py: the frames of a run's actor while one drives the robot),
+and a run of it is created without reading the camera (its actor opens it)."""
 
 import threading
 from collections import OrderedDict
 from concurrent.futures import Future, ThreadPoolExecutor
 from functools import lru_cache
 
-from contract.envs import BadObservation, env_id_problem, first_frames, module_env_ids
+import numpy as np
+from PIL import Image
+
+from app.camera import CameraUnavailable, cameras, has_camera
+from contract.envs import BadObservation, encode_png, env_class, env_id_problem, first_frames, module_env_ids
+from contract.images import model_view
 from contract.settings import Settings
+from contract.store import Store
 
 PREVIEW_SIZES = (16, 24, 32, 40, 48, 56, 64, 72, 80, 84, 96, 112, 128, 160, 192, 224, 256)
 """The model image sizes a preview is made at: a bounded set, so that callers cannot make the server build and keep
@@ -64,26 +74,60 @@ def preview_size(size: int) -> int:
     return min(PREVIEW_SIZES, key=lambda listed: (abs(listed - size), listed))
 
 
-def preview_frames(env_id: str, size: int, settings: Settings) -> tuple[bytes, bytes, str] | str:
+def preview_frames(env_id: str, size: int, settings: Settings, store: Store) -> tuple[bytes, bytes, str] | str:
     """The env's first frames and description (as the preview shows them), or why a run of it cannot start: an
     id that is not allowed or registered, an env that cannot be made or reset, or an observation that is not an
-    image (contract.envs.observation_problem: "<env id>: observation has NaN values"). The New run form's preview
-    and run creation both ask this, so a run is created only of an env whose preview works."""
+    image (contract.envs.observation_problem: "<env id>: observation has NaN values"). A robot env's are its
+    camera's current frame (robot_preview)."""
     problem = env_id_problem(env_id, allowed_modules=settings.env_modules)
     if problem:
         return problem
+    if is_robot(env_id):
+        return robot_preview(env_id, preview_size(size), store)
+    return _preview_of_env(env_id, size)
+
+
+def preview_problem(env_id: str, size: int, settings: Settings) -> str | None:
+    """Why a run of the env cannot be created, or None. The New run form's preview and run creation both ask this,
+    so a run is created only of an env whose preview works; a robot env is only checked to be allowed and to be a
+    robot (its camera may be another process's: the run's actor opens it)."""
+    problem = env_id_problem(env_id, allowed_modules=settings.env_modules)
+    if problem or is_robot(env_id):
+        return problem
+    frames = _preview_of_env(env_id, size)
+    return frames if isinstance(frames, str) else None
+
+
+def is_robot(env_id: str) -> bool:
+    """An allowed env id whose class is a robot with a camera (robot.base.RobotEnv): never made for a preview."""
+    try:
+        return has_camera(env_class(env_id))
+    except Exception:  # noqa: BLE001 - a class that cannot be read is answered by making the env (its error)
+        return False
+
+
+def robot_preview(env_id: str, size: int, store: Store) -> tuple[bytes, bytes, str] | str:
+    """A robot's camera frame as the model sees it and as a person does, read without moving the arm; the reason
+    when the camera gives none."""
+    try:
+        frame = cameras.frame(env_id, store)
+    except CameraUnavailable as error:
+        return str(error)[:500]
+    image = Image.fromarray(frame.pixels)
+    display = image.copy()
+    display.thumbnail((DISPLAY_SIZE, DISPLAY_SIZE), Image.Resampling.LANCZOS)
+    description = f"a robot's camera ({frame.width}x{frame.height}, {frame.source}): the preview is its current frame"
+    return encode_png(np.asarray(model_view(image, size))), encode_png(np.asarray(display)), description
+
+
+def _preview_of_env(env_id: str, size: int) -> tuple[bytes, bytes, str] | str:
+    """An env's first frames after reset (made once a size, kept), or why it cannot be made or reset."""
     try:
         return _first_frames.get(env_id, preview_size(size))
     except BadObservation as error:
         return str(error)[:500]
     except Exception as error:  # noqa: BLE001 - any failure of the env itself is the user's answer, not a 500
         return f"cannot make or reset {env_id!r}: {type(error).__name__}: {error}".splitlines()[0][:500]
-
-
-def preview_problem(env_id: str, size: int, settings: Settings) -> str | None:
-    """preview_frames's reason, or None when the env previews fine."""
-    frames = preview_frames(env_id, size, settings)
-    return frames if isinstance(frames, str) else None
 
 
 @lru_cache(maxsize=8)

@@ -54,7 +54,7 @@ from learner.actor_messages import (
 )
 from learner.exploration import EpisodeNoise, warm_up_action
 from learner.sac import SACAgent
-from robot.base import RobotEnv
+from robot.base import CameraBusy, RobotEnv
 
 CONTROL_POLL_SECONDS = 0.05
 """How often the actor's control thread reads Stop, Resume and Ready from the store."""
@@ -73,8 +73,25 @@ FAILURE_FLUSH_SECONDS = 5.0
 HOLD_RENEW_SECONDS = 0.25
 """How often the control thread renews the actor's hold on its robot (the hold allows moves for
 MOVE_WITHIN_SECONDS after each renewal)."""
+CAMERA_BUSY_SECONDS = 30.0
+"""How long the actor asks again for a robot whose camera another process has open."""
+CAMERA_RETRY_SECONDS = 0.25
+"""How often it asks."""
 TAKE_RETRY_SECONDS = 0.5
 """How often an actor whose robot another run holds asks for it again."""
+
+
+def open_env(config: TrainConfig) -> gymnasium.Env:
+    """The run's env, made here; a robot whose camera another process has (robot.base.CameraBusy: the server's
+    live view hands it over once the run is claimed) is asked again until CAMERA_BUSY_SECONDS have passed."""
+    deadline = time.monotonic() + CAMERA_BUSY_SECONDS
+    while True:
+        try:
+            return make_env(config.env_id, image_size=config.image_size, display_size=config.display_size)
+        except CameraBusy:
+            if time.monotonic() >= deadline:
+                raise
+            time.sleep(CAMERA_RETRY_SECONDS)
 
 
 class ActorState:
@@ -171,7 +188,7 @@ class ActorLoop:
         self.config = TrainConfig.from_dict({**settings.config, "device": "cpu", "precision": "fp32"})
         cfg = self.config
         self.owns_env = env is None
-        self.env: gymnasium.Env = env or make_env(cfg.env_id, image_size=cfg.image_size, display_size=cfg.display_size)
+        self.env: gymnasium.Env = env or open_env(cfg)
         self.action_space = self.env.action_space
         self.agent = SACAgent.for_run(cfg, int(self.action_space.shape[0]))
         self.generator = torch.Generator().manual_seed(cfg.seed)

@@ -4,7 +4,9 @@ checkpoint store (a folder both mount, or object storage by URL).
 
 - The learner's end (`RemoteActor`) has the local actor's interface (learner/actor.py's ActorProcess): it opens
   the link, stamps a keep-alive four times a second, writes each new pi to the checkpoint store
-  (ACTOR_POLICY_FILENAME) and publishes its version, and takes the actor's steps from the database in order.
+  (ACTOR_POLICY_FILENAME) and publishes its version, and takes the actor's steps from the database in order; they
+  stay there until a checkpoint holds them, so the learner that takes a run over first takes those its checkpoint
+  does not hold (`resume`).
 - The actor's end (`StoreLink`) gives learner/actor.py's `ActorLoop` the pipe and queue it expects: a thread polls the
   link (new keep-alive, start, close, a newer policy: loaded from the checkpoint store between the steps) and
   another posts the actor's messages, so the robot's clock never waits for the database.
@@ -274,8 +276,10 @@ class RemoteActor:
         self.policy_url = sibling(checkpoint_file, ACTOR_POLICY_FILENAME)
         self.closed = threading.Event()
         self.display: np.ndarray | None = None
-        self.buffer: deque[Any] = deque()
-        self.cursor, self.fetched_at = 0, -1.0
+        self.buffer: deque[tuple[int, Any]] = deque()  # (id, message)
+        self.cursor, self.fetched_at = 0, -1.0  # (the id of the last message fetched)
+        self.taken = 0
+        """The id of the last message next_message returned."""
         self.policy_version = store.open_actor_link(run_id=run_id, start_step=None).policy_version
         self.keepalive = threading.Thread(target=self._keep_alive, name="link-keepalive", daemon=True)
         self.keepalive.start()
@@ -310,6 +314,17 @@ class RemoteActor:
         claim when it sees the start: the one this learner holds)."""
         self.store.start_actor_link(run_id=self.run_id, start_step=step)
 
+    def resume(self, taken: int) -> int:
+        """The run's checkpoint holds the actor's messages up to id `taken`: those the store kept after it (taken
+        by an earlier learner, or posted as it died) come next. The id of the newest of them (`taken`: none)."""
+        self.cursor = self.taken = taken
+        return max(taken, self.store.newest_actor_message(run_id=self.run_id))
+
+    def checkpointed(self, taken: int) -> None:
+        """A checkpoint holds the messages up to id `taken`: the store forgets those before it."""
+        if taken > 0:
+            self.store.forget_actor_messages(run_id=self.run_id, checkpointed_id=taken)
+
     def send_policy(self, modules: dict[str, dict[str, Any]]) -> None:
         """pi's weights to the checkpoint store, then their version to the actor."""
         save_checkpoint(self.policy_url, {"version": self.policy_version + 1, "modules": modules})
@@ -326,7 +341,7 @@ class RemoteActor:
             if remaining <= 0:
                 return None
             time.sleep(min(remaining, LINK_POLL_SECONDS / 2))
-        message = self.buffer.popleft()
+        self.taken, message = self.buffer.popleft()
         if isinstance(message, Failure):
             raise ActorError(f"the actor failed:\n{message.traceback}")
         if isinstance(message, EpisodeStart | Transition):
@@ -342,7 +357,7 @@ class RemoteActor:
                 return
             raise
         for row in rows:
-            self.buffer.append(decode_message(row.kind, row.payload, row.observation_png, row.display_png))
+            self.buffer.append((row.id, decode_message(row.kind, row.payload, row.observation_png, row.display_png)))
             self.cursor = row.id
 
     def _keep_alive(self) -> None:

@@ -21,6 +21,15 @@ class EnvEpisode:
     noise: EpisodeNoise | None = None
     """Its coloured exploration noise, drawn anew at each episode's start; None: i.i.d. (SAC's)."""
 
+    def state_dict(self) -> dict[str, Any]:
+        """What a checkpoint keeps of the episode under way (its observation is the replay's frame obs_slot)."""
+        return {"obs_slot": self.obs_slot, "length": self.length, "total": self.total}
+
+    def load_state_dict(self, state: dict[str, Any], frames: np.ndarray) -> None:
+        """The episode under way at the checkpoint, its observation from the replay's `frames`."""
+        self.obs_slot, self.length, self.total = int(state["obs_slot"]), int(state["length"]), float(state["total"])
+        self.obs = frames[self.obs_slot].copy()
+
 
 class EnvStep(NamedTuple):
     """One env step as a runner hands it over: the episode it belongs to, the action and gymnasium's 5-tuple."""

@@ -5,6 +5,10 @@ The actor runs in a process beside the learner (learner/actor.py) or, with remot
 (`raq actor`, linked through the database and the checkpoint store: learner/actor_link.py); both give the
 `ActorHandle` of learner/actor_messages.py. There are no evaluation envs: a robot is not opened twice. A person's
 Evaluate now episodes run on the robot itself and are asked about (learner/robot_evaluation.py).
+
+A remote actor's steps stay in the store until a checkpoint holds them: a learner that takes such a run over adds
+those after its checkpoint (an earlier learner's, or posted as it died) to its replay and its step count, in order,
+before the actor starts again, so that no step the robot took is lost.
 """
 
 import time
@@ -18,7 +22,7 @@ from contract.learner_pace import PACE_METRIC
 from contract.store import Store
 from learner.actor import ActorProcess, ActorSettings
 from learner.actor_link import RemoteActor
-from learner.actor_messages import ActorHandle, EpisodeStart, StateChange, Transition
+from learner.actor_messages import ActorHandle, ActorMessage, EpisodeStart, StateChange, Transition
 from learner.robot_evaluation import RobotEvaluation
 from learner.run_control import RunControl
 from learner.trainer import EnvEpisode, EnvStep, Trainer
@@ -44,8 +48,9 @@ class RealTimeRunner:
         execution = config.execution
         self.claim = store.run_claim(run_id=control.run_id)  # (the learner's, read as it set the run up)
         self.actor: ActorHandle
+        self.link: RemoteActor | None = None
         if execution.remote_actor:  # on the robot's host: the env is neither made nor imported here
-            self.actor = RemoteActor(
+            self.actor = self.link = RemoteActor(
                 store, run_id=control.run_id, checkpoint_file=str(checkpoint_file), heartbeat=control.tick
             )
         else:
@@ -54,7 +59,7 @@ class RealTimeRunner:
                 control_hz=control_rate(config.env_id, execution.control_hz),
                 person_reset=execution.reset_every_episode,
             ))  # fmt: skip
-        self.episode = EnvEpisode(self.actor)
+        self.episode = EnvEpisode(self.actor, length=-1)  # (none until the actor's first, or the checkpoint's)
         self.trainer = trainer = Trainer(
             config, store=store, control=control, goal_set_id=goal_set_id, checkpoint_file=checkpoint_file,
             episodes=[self.episode], eval_envs=[],
@@ -71,14 +76,46 @@ class RealTimeRunner:
         self.policy_sent_at = -np.inf
         self.periods: list[float] = []
         self.paced_from = (0, 0)  # (env step, SAC updates) at the last record
+        self.kept_from, self.kept_through = 0, 0  # (the checkpoint's step; the id of the newest message kept since)
+        self.actor_started = False
         trainer.metric_sources.extend([self._period_metrics, self._pace_metrics])
+        if self.link is not None:
+            trainer.after_checkpoint.append(self._forget_checkpointed)
 
     def start(self, *, resumed: bool) -> None:
-        """The actor may begin: it resets the scene itself (a person first, when needed)."""
+        """The actor may begin (it resets the scene itself, a person first when needed) once `steps` has handed
+        over the remote actor's steps kept since the checkpoint."""
         counters = self.trainer.counters
+        self.kept_from, self.paced_from = counters.step, (counters.step, counters.total_updates)
+        if self.link is not None:
+            self.kept_through = self.link.resume(counters.actor_message)
+        self._start_actor_when_kept_are_taken()
+
+    def _start_actor_when_kept_are_taken(self) -> None:
+        """The actor may begin at the run's step, every kept step counted."""
+        if self.actor_started or (self.link is not None and self.link.taken < self.kept_through):
+            return
+        counters = self.trainer.counters
+        if counters.step > self.kept_from:
+            self.trainer.control.event(
+                f"{counters.step - self.kept_from} robot steps taken after step {self.kept_from} (kept in the store "
+                f"since the last checkpoint) added to the replay; the actor starts at step {counters.step}"
+            )
         self.paced_from = (counters.step, counters.total_updates)
         self.actor.start(counters.step, self.claim)
-        self.begin_episode(self.episode)
+        self.actor_started = True
+
+    def _next_message(self, timeout: float) -> ActorMessage | None:
+        """The actor's next message (the kept ones first), counted as taken."""
+        message = self.actor.next_message(timeout)
+        if message is not None and self.link is not None:
+            self.trainer.counters.actor_message = self.link.taken
+        return message
+
+    def _forget_checkpointed(self) -> None:
+        """A checkpoint holds the remote actor's messages up to the last taken: the store forgets them."""
+        assert self.link is not None
+        self.link.checkpointed(self.trainer.counters.actor_message)
 
     def begin_episode(self, episode: EnvEpisode) -> None:
         """The actor begins the next episode itself; its first observation is a message `steps` takes."""
@@ -87,18 +124,20 @@ class RealTimeRunner:
     def steps(self, count: int) -> list[EnvStep]:
         """The actor's next step, and SAC updates while none is waiting (at most updates_per_step for each step
         taken; fewer when the updates are slower than the robot); the policy sent every policy_sync_seconds. An
-        episode's first observation is taken on the way. Nothing after REAL_TIME_SLICE seconds without a step (a
-        person resetting, a stopped robot), so that the loop sees its stop and interrupt meanwhile."""
+        episode's first observation is taken on the way; the steps kept since the checkpoint come first. Nothing
+        after REAL_TIME_SLICE seconds without a step (a person resetting, a stopped robot), so that the loop sees
+        its stop and interrupt meanwhile."""
         trainer, episode = self.trainer, self.episode
         deadline = time.monotonic() + REAL_TIME_SLICE
         while True:
+            self._start_actor_when_kept_are_taken()
             self._send_policy()
-            message = self.actor.next_message(0.0)  # the actor's steps first: the replay never lags the robot
+            message = self._next_message(0.0)  # the actor's steps first: the replay never lags the robot
             if message is None and trainer.counters.total_updates < trainer.updates_due_by(trainer.counters.step):
                 trainer.sac_updates(1)
                 continue
             if message is None:
-                message = self.actor.next_message(ACTOR_POLL_SECONDS)
+                message = self._next_message(ACTOR_POLL_SECONDS)
             if message is None:
                 if time.monotonic() >= deadline:
                     trainer.control.tick()

@@ -50,6 +50,9 @@ class Counters:
     """The naive classifier's one-off training is done (it is frozen from then on)."""
     evaluated_step: int = -1
     """The step of the last completed evaluation."""
+    actor_message: int = 0
+    """The id of the remote actor's last message taken: the checkpoint holds every step up to it, the store the
+    actor's later ones."""
 
     def state_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -58,6 +61,7 @@ class Counters:
         self.step, self.total_updates = int(state["step"]), int(state["total_updates"])
         self.answer_cursor, self.naive_trained = int(state["answer_cursor"]), bool(state["naive_trained"])
         self.evaluated_step = int(state.get("evaluated_step", self.step))
+        self.actor_message = int(state.get("actor_message", 0))
 
 
 class RunControl:

@@ -87,6 +87,8 @@ class Trainer:
         self.classifier_thread: Executor | None = None
         """Where f_psi's epoch may train while an evaluation's episodes run (set by a runner that has one)."""
         self.metric_sources: list[Callable[[], dict[str, float]]] = [self.updates.take_metrics]
+        self.after_checkpoint: list[Callable[[], None]] = []
+        """What a runner does once a checkpoint is written."""
         self.finished_returns: list[float] = []
         self.finished_successes: list[float | None] = []
         self.log_time, self.log_step, self.log_updates = time.monotonic(), 0, 0
@@ -404,6 +406,8 @@ class Trainer:
         save_checkpoint(sibling(self.checkpoint_file, POLICY_FILENAME), self.policy_state())
         seconds = time.monotonic() - started
         self.control.event(f"checkpoint written at step {self.counters.step} ({size / 1e6:.1f} MB in {seconds:.1f} s)")
+        for written in self.after_checkpoint:
+            written()
         self.control.tick()
 
     def _state(self) -> dict[str, Any]:
@@ -416,6 +420,7 @@ class Trainer:
             "reward_model": self.reward_model.state_dict() if self.reward_model is not None else None,
             "selector": self.queries.selector.state_dict() if self.queries is not None else None,
             "replay": self.replay.state_dict(),
+            "episodes": [episode.state_dict() for episode in self.episodes],
             "rng": {
                 "numpy": self.rng.bit_generator.state, "torch": torch.get_rng_state(),
                 "acting": self.acting_generator.get_state(), "cuda": _cuda_rng_states(self.agent.device),
@@ -440,6 +445,8 @@ class Trainer:
         if self.queries is not None:
             self.queries.selector.load_state_dict(state["selector"])
         self.replay.load_state_dict(state["replay"])
+        for episode, saved in zip(self.episodes, state.get("episodes") or [], strict=False):
+            episode.load_state_dict(saved, self.replay.frames)
         rng = state["rng"]
         self.rng.bit_generator.state = rng["numpy"]
         torch.set_rng_state(rng["torch"])

@@ -1,11 +1,16 @@
 """The contract between vice-raq and a robot: a Gymnasium env whose observation is the robot's camera.
 
 Subclass `RobotEnv` and write five methods: `read_camera`, `send_action`, `reset_scene`, `hold_safe` and,
-if the robot can tell, `read_success`. The base class does the rest the same way for every robot: actions are
-clipped to [-1, 1] and passed through your `limit_action` (workspace bounds, speed limits; told the seconds since
-the previous action) before they reach the arm; the camera's frame is centre-cropped to a square and resized exactly
-as goal photos are (`contract.images.model_view`), so goals and observations look alike; `stop()` holds the arm safe
-and refuses further actions until the next `reset()`.
+if the robot can tell, `read_success`. Only `send_action`, `reset_scene` and `hold_safe` move or hold the arm:
+`__init__` connects to the camera and the arm and never moves it, and `read_camera` only reads. The web server
+makes the env to show the camera's frames, never calls those three, and lets go of it (`let_go()`) before
+`close()`, so that its close holds nothing either.
+
+The base class does the rest the same way for every robot: actions are clipped to [-1, 1] and passed through your
+`limit_action` (workspace bounds, speed limits; told the seconds since the previous action) before they reach the
+arm; the camera's frame is centre-cropped to a square and resized exactly as goal photos are
+(`contract.images.model_view`), so goals and observations look alike; `stop()` holds the arm safe and refuses
+further actions until the next `reset()`.
 """
 
 import inspect
@@ -23,6 +28,12 @@ from contract.images import model_view
 
 class RobotStopped(RuntimeError):
     """An action was sent after `stop()` and before the next `reset()`."""
+
+
+class CameraBusy(OSError):
+    """The camera is open in another process (most USB cameras open in one process at a time). Raise it from
+    `__init__` when the camera cannot be opened for that reason: a run's actor then tries again for a while
+    (learner/actor.py CAMERA_BUSY_SECONDS), as the server hands the camera over to it."""
 
 
 class RobotEnv(gym.Env[np.ndarray, np.ndarray]):

@@ -6,11 +6,14 @@ again after its last frame, unless `loop=False`; a camera or a stream never loop
         frame = camera.read()  # (480, 640, 3) uint8 RGB
 """
 
+import errno
 import threading
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from robot.base import CameraBusy
 
 
 class CameraError(RuntimeError):
@@ -26,6 +29,9 @@ class OpenCVCamera:
         self._lock = threading.Lock()  # the actor reads frames while the page's live view may read one too
         self.capture = cv2.VideoCapture(source)
         if not self.capture.isOpened():
+            device = Path(f"/dev/video{source}" if isinstance(source, int) else source)
+            if str(device).startswith("/dev/") and device.exists():  # there, but not ours: another process has it
+                raise CameraBusy(errno.EBUSY, f"camera {source!r} is open in another process")
             raise CameraError(f"cannot open camera {source!r}")
         if width:
             self.capture.set(cv2.CAP_PROP_FRAME_WIDTH, width)

@@ -2,7 +2,9 @@
 module (RAQ_ENV_MODULES=my_lab.arm) and start a run on the env "my_lab.arm:MyArm-v0".
 
 What each part must do is in robot/base.py. Keep the safety limits here, in the env: the learner only ever sends
-actions in [-1, 1], and `limit_action` is the last word before the arm moves.
+actions in [-1, 1], and `limit_action` is the last word before the arm moves. Only `send_action`, `reset_scene`
+and `hold_safe` may move or hold the arm: `__init__` connects and never moves it, and `read_camera` only reads (the
+web server makes this env to show the camera's frames, and never calls those three).
 """
 
 import gymnasium as gym
@@ -26,8 +28,8 @@ class MyArmEnv(RobotEnv):
 
     def __init__(self, image_size: int = 84, camera: int | str = 0) -> None:
         super().__init__(action_dim=3, image_size=image_size)
-        self.camera = OpenCVCamera(camera)
-        self.hand = np.zeros(3)  # fill in: read the hand's position from your arm's driver
+        self.camera = OpenCVCamera(camera)  # (CameraBusy while another process has it: the actor tries again)
+        self.hand = np.zeros(3)  # fill in: read the hand's position from your arm's driver (connect; never move)
 
     def read_camera(self) -> np.ndarray:
         return self.camera.read()

@@ -202,11 +202,12 @@ def run_live_server(database_url: str, tmp_path: Path, env_overrides: dict[str, 
     env.update({"RAQ_DATABASE_URL": database_url, "RAQ_DATA_DIR": str(tmp_path), "PYTHONUNBUFFERED": "1"})
     env.update(env_overrides)
     log_path = tmp_path / f"server-{port}.log"
+    python_path = os.pathsep.join(filter(None, [str(ROOT), env_overrides.get("PYTHONPATH")]))
     with log_path.open("wb") as log:
         process = subprocess.Popen(
             [sys.executable, "-m", "uvicorn", "--factory", "app.main:create_app",
              "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning", "--no-proxy-headers"],
-            cwd=tmp_path, env={**env, "PYTHONPATH": str(ROOT)}, stdout=log, stderr=subprocess.STDOUT,
+            cwd=tmp_path, env={**env, "PYTHONPATH": python_path}, stdout=log, stderr=subprocess.STDOUT,
         )  # fmt: skip
         base_url = f"http://127.0.0.1:{port}"
         try:

@@ -2,12 +2,16 @@
 every action it sends, every reset and every hold to a log with its time.
 
 The log is the file that RECORDING_ARM_LOG names (nothing is written without it), one line per event:
-"<what> <time.monotonic()>", so a test reads, from its own process, when the actor's arm moved and when it was
-held (Linux's monotonic clock is the same in every process); "limit <seconds>" lines say what `limit_action` was
-told. `make("recording_arm:RecordingArm-v0")` with RAQ_ENV_MODULES listing `recording_arm` and this folder on the
-path. `LateArm-v0` is the same arm whose every LATE_EVERY-th action takes 1.3 control periods to send.
+"<what> <time.monotonic()> <pid>", so a test reads, from its own process, when the actor's arm moved and when it
+was held, and by which process (Linux's monotonic clock is the same in every process); "limit <seconds>" lines say
+what `limit_action` was told. `make("recording_arm:RecordingArm-v0")` with RAQ_ENV_MODULES listing
+`recording_arm` and this folder on the path. `LateArm-v0` is the same arm whose every LATE_EVERY-th action takes
+1.3 control periods to send; `ExclusiveArm-v0` one whose camera opens in one process at a time (robot.base's
+CameraBusy for a second), as most USB cameras do.
 """
 
+import errno
+import fcntl
 import os
 import time
 from pathlib import Path
@@ -16,11 +20,12 @@ import gymnasium as gym
 import numpy as np
 
 from learner.testing_envs import DotReach
-from robot.base import RobotEnv
+from robot.base import CameraBusy, RobotEnv
 
 LOG_VARIABLE = "RECORDING_ARM_LOG"
 ENV_ID = "recording_arm:RecordingArm-v0"
 LATE_ENV_ID = "recording_arm:LateArm-v0"
+EXCLUSIVE_ENV_ID = "recording_arm:ExclusiveArm-v0"
 LATE_EVERY = 5
 
 
@@ -36,7 +41,7 @@ class RecordingArm(RobotEnv):
     def _record(self, what: str, value: float | None = None) -> None:
         if self.log:
             with open(self.log, "a") as file:
-                file.write(f"{what} {time.monotonic() if value is None else value!r}\n")
+                file.write(f"{what} {time.monotonic() if value is None else value!r} {os.getpid()}\n")
 
     def limit_action(self, action: np.ndarray, *, seconds: float | None = None) -> np.ndarray:
         self._record("limit", float("nan") if seconds is None else seconds)
@@ -71,14 +76,41 @@ class LateArm(RecordingArm):
             time.sleep(1.3 / self.control_hz)
 
 
-def recorded(log: Path) -> list[tuple[str, float]]:
-    """The log's events in order: (what, monotonic time)."""
+class ExclusiveArm(RecordingArm):
+    """The recording arm whose camera one process at a time may have open (a lock on the log's ".camera" file):
+    making it in a second process raises CameraBusy until the first closes it."""
+
+    def __init__(self, **kwargs: object) -> None:
+        super().__init__(**kwargs)  # type: ignore[arg-type]
+        self.camera = open(f"{self.log}.camera", "a")  # noqa: SIM115 - held open while the camera is
+        try:
+            fcntl.flock(self.camera, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self.camera.close()
+            raise CameraBusy(errno.EBUSY, "the camera is open in another process: device busy") from None
+        self._record("open")
+
+    def close(self) -> None:
+        super().close()
+        if not self.camera.closed:
+            self._record("close")
+            self.camera.close()
+
+
+def recorded_by(log: Path) -> list[tuple[str, float, int]]:
+    """The log's events in order: (what, monotonic time, the process's id)."""
     if not log.exists():
         return []
     lines = log.read_text().split("\n")[:-1]  # (a line still being written has no newline yet)
-    return [(what, float(at)) for what, _, at in (line.partition(" ") for line in lines)]
+    return [(what, float(at), int(pid)) for what, at, pid in (line.split(" ") for line in lines)]
+
+
+def recorded(log: Path) -> list[tuple[str, float]]:
+    """The log's events in order: (what, monotonic time)."""
+    return [(what, at) for what, at, _ in recorded_by(log)]
 
 
 if "RecordingArm-v0" not in gym.registry:
     gym.register(id="RecordingArm-v0", entry_point="recording_arm:RecordingArm", max_episode_steps=1000)
     gym.register(id="LateArm-v0", entry_point="recording_arm:LateArm", max_episode_steps=1000)
+    gym.register(id="ExclusiveArm-v0", entry_point="recording_arm:ExclusiveArm", max_episode_steps=1000)

@@ -8,13 +8,14 @@ from urllib.parse import urlencode
 from fastapi import APIRouter, HTTPException, Query, Response
 from pydantic import AfterValidator, BaseModel
 
-from app.deps import ReadAuth, SameSiteRead, SettingsDep
+from app.deps import ReadAuth, SameSiteRead, SettingsDep, StoreDep
 from app.previews import PREVIEW_SIZES, preview_frames, suggested_env_ids
 from app.schemas import TaskSettingsOut, errors
 from app.views import task_settings_out
 from contract.config import DEVICE_PATTERN, robot_preset_for
 from contract.envs import SIM_ENV_IDS, control_rate, env_id_problem
 from contract.settings import Settings
+from contract.store import Store
 
 router = APIRouter(prefix="/api/envs", tags=["envs"], responses=errors(401))
 
@@ -90,8 +91,8 @@ def _env_error(message: str) -> HTTPException:
     return HTTPException(status_code=422, detail=[{"loc": ["query", "env_id"], "msg": message, "type": "value_error"}])
 
 
-def _checked_frames(env_id: str, size: int, settings: Settings) -> tuple[bytes, bytes, str]:
-    frames = preview_frames(env_id, size, settings)
+def _checked_frames(env_id: str, size: int, settings: Settings, store: Store) -> tuple[bytes, bytes, str]:
+    frames = preview_frames(env_id, size, settings, store)
     if isinstance(frames, str):
         raise _env_error(frames)
     return frames
@@ -123,11 +124,17 @@ def robot_settings(
 
 @router.get("/preview", response_model=EnvPreviewOut, responses=errors(403))
 def preview(
-    env_id: EnvIdQuery, settings: SettingsDep, _auth: ReadAuth, _same_site: SameSiteRead, size: SizeQuery = 48
+    env_id: EnvIdQuery,
+    settings: SettingsDep,
+    store: StoreDep,
+    _auth: ReadAuth,
+    _same_site: SameSiteRead,
+    size: SizeQuery = 48,
 ) -> EnvPreviewOut:
-    """Make the env, reset it with seed 0 and describe it; the two images are at the URLs given (422 when the id
-    is not allowed or the env cannot be made)."""
-    _image, _display, description = _checked_frames(env_id, size, settings)
+    """Make the env, reset it with seed 0 and describe it; a robot env is never made or reset: its camera's current
+    frame is shown. The two images are at the URLs given (422 when the id is not allowed, the env cannot be made
+    or the robot's camera gives no frame)."""
+    _image, _display, description = _checked_frames(env_id, size, settings, store)
     base = "/api/envs/preview/image?" + urlencode({"env_id": env_id, "size": size})
     return EnvPreviewOut(
         env_id=env_id, observation_url=base + "&kind=observation", display_url=base + "&kind=display",
@@ -143,10 +150,11 @@ def preview(
 def preview_image(
     env_id: EnvIdQuery,
     settings: SettingsDep,
+    store: StoreDep,
     _auth: ReadAuth,
     _same_site: SameSiteRead,
     size: SizeQuery = 48,
     kind: Literal["observation", "display"] = "observation",
 ) -> Response:
-    image, display, _description = _checked_frames(env_id, size, settings)
+    image, display, _description = _checked_frames(env_id, size, settings, store)
     return Response(content=image if kind == "observation" else display, media_type="image/png")

@@ -4,15 +4,17 @@ database, and the policy's weights through the checkpoint store (object storage)
 The learner opens the link (open_actor_link: the step its run starts at), stamps it four times a second
 (learner_keepalive) and publishes each new policy's version (publish_actor_policy) after writing its weights;
 the actor announces its action and observation spaces and its control rate (announce_actor), posts its steps in
-order (post_actor_messages) and reads the link's state (actor_link); the learner takes the steps in id order and
-deletes those it has taken (take_actor_messages). Ages are measured on the database's clock, never a host's.
+order (post_actor_messages) and reads the link's state (actor_link); the learner takes the steps in id order
+(take_actor_messages). The messages are the robot's steps as they happened, kept until a checkpoint of the run holds
+them (forget_actor_messages): a learner that takes the run over trains on every step taken after its checkpoint
+(up to newest_actor_message before its actor starts). Ages are measured on the database's clock, never a host's.
 """
 
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import delete, insert, select
+from sqlalchemy import delete, func, insert, select
 
 from contract.store.base import StoreBase, found
 from contract.store.models import ActorMessage, RobotControl, Run
@@ -53,10 +55,9 @@ class ActorLinkStore(RobotStore, StoreBase):
     """Learner and remote actor: the link's state in robot_controls, the actor's messages in actor_messages."""
 
     def open_actor_link(self, *, run_id: int, start_step: int | None) -> ActorLink:
-        """The learner takes the link: messages of an earlier learner are dropped; `start_step` (None: not yet)
-        tells the actor where the run is. NotFound for an unknown run."""
+        """The learner takes the link (the messages an earlier learner's checkpoint does not hold are kept for it);
+        `start_step` (None: not yet) tells the actor where the run is. NotFound for an unknown run."""
         with self.writing() as session:
-            session.execute(delete(ActorMessage).where(ActorMessage.run_id == run_id))
             values = {"start_step": start_step, "learner_closed": False, "learner_seen_at": self._db_now()}
             self._update_or_create(session, run_id=run_id, values=values)
         return self.actor_link(run_id=run_id)
@@ -123,11 +124,9 @@ class ActorLinkStore(RobotStore, StoreBase):
             session.execute(insert(ActorMessage).values(rows))
 
     def take_actor_messages(self, *, run_id: int, after_id: int, limit: int = TAKE_MAX) -> list[ActorLinkMessage]:
-        """The actor's messages after `after_id`, oldest first; those before `after_id` (taken before) are deleted.
-        The row `after_id` itself is kept: SQLite numbers a new row one past the highest left, so an emptied table
-        would number the next message below the taker's cursor."""
-        with self.writing() as session:
-            session.execute(delete(ActorMessage).where(ActorMessage.run_id == run_id, ActorMessage.id < after_id))
+        """The actor's messages after `after_id`, oldest first. Taking deletes none: forget_actor_messages does, once
+        a checkpoint holds them."""
+        with self.reading() as session:
             rows = session.execute(
                 select(
                     ActorMessage.id, ActorMessage.kind, ActorMessage.payload, ActorMessage.observation_png,
@@ -141,6 +140,22 @@ class ActorLinkStore(RobotStore, StoreBase):
             ActorLinkMessage(id=row[0], kind=row[1], payload=row[2], observation_png=row[3], display_png=row[4])
             for row in rows
         ]
+
+    def newest_actor_message(self, *, run_id: int) -> int:
+        """The id of the run's newest actor message (0: none)."""
+        with self.reading() as session:
+            newest = session.scalar(select(func.max(ActorMessage.id)).where(ActorMessage.run_id == run_id))
+        return int(newest or 0)
+
+    def forget_actor_messages(self, *, run_id: int, checkpointed_id: int) -> int:
+        """A checkpoint of the run holds the actor's messages up to `checkpointed_id`: those before it are deleted
+        (how many). The row `checkpointed_id` itself is kept: SQLite numbers a new row one past the highest left, so
+        an emptied table would number the next message below the checkpoint's."""
+        with self.writing() as session:
+            deleted = session.execute(
+                delete(ActorMessage).where(ActorMessage.run_id == run_id, ActorMessage.id < checkpointed_id)
+            )
+        return int(deleted.rowcount or 0)
 
 
 def _as_datetime(value: Any) -> datetime:

@@ -323,7 +323,7 @@ class RobotHold(Base):
 
 class ActorMessage(Base):
     """A remote actor's message to its learner (a step, an episode's first observation, a state), in id order;
-    the learner deletes those it has taken."""
+    kept until a checkpoint of the run holds it (a learner that takes the run over trains on the later ones)."""
 
     __tablename__ = "actor_messages"
     __table_args__ = (Index("ix_actor_messages_run_id_id", "run_id", "id"),)

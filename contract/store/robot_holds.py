@@ -17,8 +17,10 @@ from sqlalchemy import delete, insert, or_, select, update
 from sqlalchemy.exc import IntegrityError
 
 from contract.store.base import StoreBase
-from contract.store.models import RobotHold, Run
+from contract.store.models import RobotHold, Run, RunStatus
 
+CLAIMED_RUN_SECONDS = 60.0
+"""A claimed run of an env whose learner beat within this many seconds is about to drive (or drives) its robot."""
 HOLD_LEASE_SECONDS = 3.0
 """A robot's hold not renewed for this long is free for another run's actor."""
 MOVE_WITHIN_SECONDS = 1.0
@@ -119,4 +121,20 @@ class RobotHoldStore(StoreBase):
                     RobotHold.robot == robot, RobotHold.renewed_at >= self._db_now(HOLD_LEASE_SECONDS)
                 )
             )
+        return None if run_id is None else int(run_id)
+
+    def claimed_run_of(self, *, env_id: str) -> int | None:
+        """The run of `env_id` that a live learner holds (starting or training, a heartbeat within
+        CLAIMED_RUN_SECONDS), lowest id first: its actor drives the robot or is about to, so no other process may
+        keep the robot's camera open. None when there is none."""
+        with self.reading() as session:
+            run_id = session.scalar(
+                select(Run.id)
+                .where(
+                    Run.env_id == env_id, Run.status.in_(RunStatus.ACTIVE),
+                    Run.heartbeat_at >= self._db_now(CLAIMED_RUN_SECONDS),
+                )
+                .order_by(Run.id)
+                .limit(1)
+            )  # fmt: skip
         return None if run_id is None else int(run_id)
