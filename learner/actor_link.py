@@ -269,10 +269,11 @@ def _wait_for_learner(
 class RemoteActor:
     """The learner's handle on an actor on another host, with ActorProcess's interface."""
 
-    def __init__(self, store: Store, *, run_id: int, checkpoint_file: str, heartbeat: Any = None) -> None:
-        """Open the link and wait (up to ACTOR_WAIT_SECONDS, `heartbeat()` called meanwhile) for the actor to
-        announce itself."""
-        self.store, self.run_id = store, run_id
+    def __init__(self, store: Store, *, run_id: int, claim: int, checkpoint_file: str, heartbeat: Any = None) -> None:
+        """Open the link for the run's `claim` (this learner's: every write to the link carries it, and is skipped
+        once the run is claimed again) and wait (up to ACTOR_WAIT_SECONDS, `heartbeat()` called meanwhile) for the
+        actor to announce itself."""
+        self.store, self.run_id, self.claim = store, run_id, claim
         self.policy_url = sibling(checkpoint_file, ACTOR_POLICY_FILENAME)
         self.closed = threading.Event()
         self.display: np.ndarray | None = None
@@ -280,7 +281,7 @@ class RemoteActor:
         self.cursor, self.fetched_at = 0, -1.0  # (the id of the last message fetched)
         self.taken = 0
         """The id of the last message next_message returned."""
-        self.policy_version = store.open_actor_link(run_id=run_id, start_step=None).policy_version
+        self.policy_version = store.open_actor_link(run_id=run_id, claim=claim, start_step=None).policy_version
         self.keepalive = threading.Thread(target=self._keep_alive, name="link-keepalive", daemon=True)
         self.keepalive.start()
         deadline = time.monotonic() + ACTOR_WAIT_SECONDS
@@ -312,7 +313,7 @@ class RemoteActor:
     def start(self, step: int, claim: int) -> None:
         """The run is at `step` (after its checkpoint): the actor may begin its first episode (it reads the run's
         claim when it sees the start: the one this learner holds)."""
-        self.store.start_actor_link(run_id=self.run_id, start_step=step)
+        self.store.start_actor_link(run_id=self.run_id, claim=self.claim, start_step=step)
 
     def resume(self, taken: int) -> int:
         """The run's checkpoint holds the actor's messages up to id `taken`: those the store kept after it (taken
@@ -323,12 +324,14 @@ class RemoteActor:
     def checkpointed(self, taken: int) -> None:
         """A checkpoint holds the messages up to id `taken`: the store forgets those before it."""
         if taken > 0:
-            self.store.forget_actor_messages(run_id=self.run_id, checkpointed_id=taken)
+            self.store.forget_actor_messages(run_id=self.run_id, claim=self.claim, checkpointed_id=taken)
 
     def send_policy(self, modules: dict[str, dict[str, Any]]) -> None:
         """pi's weights to the checkpoint store, then their version to the actor."""
         save_checkpoint(self.policy_url, {"version": self.policy_version + 1, "modules": modules})
-        self.policy_version = self.store.publish_actor_policy(run_id=self.run_id)
+        published = self.store.publish_actor_policy(run_id=self.run_id, claim=self.claim)
+        if published is not None:  # (None: the run was claimed again, and this learner leaves it at its next step)
+            self.policy_version = published
 
     def next_message(self, timeout: float) -> ActorMessage | None:
         """The actor's next message within `timeout` seconds, or None; ActorError for its failure."""
@@ -363,7 +366,7 @@ class RemoteActor:
     def _keep_alive(self) -> None:
         while not self.closed.wait(KEEPALIVE_SECONDS):
             with contextlib.suppress(Exception):
-                self.store.learner_keepalive(run_id=self.run_id)
+                self.store.learner_keepalive(run_id=self.run_id, claim=self.claim)
 
     def close(self) -> None:
         """Let go of the actor (it holds the arm and waits for the next learner). Once only."""
@@ -371,4 +374,4 @@ class RemoteActor:
             return
         self.closed.set()
         with contextlib.suppress(Exception):
-            self.store.close_actor_link(run_id=self.run_id)
+            self.store.close_actor_link(run_id=self.run_id, claim=self.claim)

@@ -51,8 +51,9 @@ class RealTimeRunner:
         self.link: RemoteActor | None = None
         if execution.remote_actor:  # on the robot's host: the env is neither made nor imported here
             self.actor = self.link = RemoteActor(
-                store, run_id=control.run_id, checkpoint_file=str(checkpoint_file), heartbeat=control.tick
-            )
+                store, run_id=control.run_id, claim=self.claim, checkpoint_file=str(checkpoint_file),
+                heartbeat=control.tick,
+            )  # fmt: skip
         else:
             self.actor = ActorProcess(ActorSettings(
                 config.to_dict(), run_id=control.run_id, database_url=store.url,

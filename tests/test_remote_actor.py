@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import sqlalchemy as sa
 from conftest import create_run, learn_once_beside
 from recording_arm import ENV_ID, LOG_VARIABLE, recorded
 from test_actor import real_time_config
@@ -75,16 +76,16 @@ def link_store(request: pytest.FixtureRequest, database_url: str) -> Iterator[St
 def test_the_link_carries_the_actors_messages_in_order_and_the_learners_side(link_store: Store) -> None:
     store = link_store
     run_id = store.create_run(env_id="robot.standin:PusherStandIn-v0", algorithm="vice_raq", config={}).id
-    link = store.open_actor_link(run_id=run_id, start_step=None)
+    link = store.open_actor_link(run_id=run_id, claim=0, start_step=None)
     assert link.start_step is None and not link.learner_closed and link.actor_spaces is None
     assert link.learner_age_seconds is not None and 0 <= link.learner_age_seconds < 2
     store.announce_actor(run_id=run_id, spaces={"control_hz": 5.0})
     store.report_actor(run_id=run_id, state="acting")
-    store.start_actor_link(run_id=run_id, start_step=1200)
+    store.start_actor_link(run_id=run_id, claim=0, start_step=1200)
     link = store.actor_link(run_id=run_id)
     assert link.start_step == 1200 and link.actor_spaces == {"control_hz": 5.0}
     assert link.actor_age_seconds is not None and link.actor_age_seconds < 2
-    assert [store.publish_actor_policy(run_id=run_id) for _ in range(2)] == [1, 2]
+    assert [store.publish_actor_policy(run_id=run_id, claim=0) for _ in range(2)] == [1, 2]
 
     cursor, seen = 0, []
     for batch in (["a", "b", "c"], ["d"], ["e", "f"]):  # each batch taken whole before the next is posted
@@ -95,11 +96,46 @@ def test_the_link_carries_the_actors_messages_in_order_and_the_learners_side(lin
         cursor = taken[-1].id
     assert seen == ["a", "b", "c", "d", "e", "f"]
 
-    store.close_actor_link(run_id=run_id)
+    store.close_actor_link(run_id=run_id, claim=0)
     link = store.actor_link(run_id=run_id)
     assert link.learner_closed and link.start_step is None and link.policy_version == 2
     with pytest.raises(NotFound):
         store.actor_link(run_id=run_id + 1)
+
+
+def test_a_learner_whose_run_was_claimed_again_writes_nothing_on_the_link(link_store: Store) -> None:
+    """The displaced learner (it stalled past the staleness limit, another claimed its run) neither closes, stamps
+    nor publishes on the new learner's link, nor forgets steps its own checkpoint lacks."""
+    store = link_store
+    run_id = store.create_run(
+        env_id="robot.standin:PusherStandIn-v0", algorithm="vice_raq", config={}, priority=100
+    ).id  # (claimed first, before any other run of the module's database)
+    first = store.claim_next_run(worker="first")
+    assert first is not None and first.id == run_id
+    old_claim = store.run_claim(run_id=run_id)
+    store.open_actor_link(run_id=run_id, claim=old_claim, start_step=None)
+    store.post_actor_messages(run_id=run_id, messages=[("state", {"items": [n]}, None, None) for n in "abc"])
+    with store.engine.begin() as connection:  # the first learner's heartbeat is old: the run is taken over
+        connection.execute(sa.text("UPDATE runs SET heartbeat_at = '2000-01-01 00:00:00.000000' WHERE id = :id"),
+                           {"id": run_id})  # fmt: skip
+    second = store.claim_next_run(worker="second")
+    assert second is not None and second.id == run_id
+    new_claim = store.run_claim(run_id=run_id)
+    assert new_claim == old_claim + 1
+    store.open_actor_link(run_id=run_id, claim=new_claim, start_step=None)
+    store.start_actor_link(run_id=run_id, claim=new_claim, start_step=40)
+    version = store.publish_actor_policy(run_id=run_id, claim=new_claim)
+
+    assert store.close_actor_link(run_id=run_id, claim=old_claim) is False
+    assert store.publish_actor_policy(run_id=run_id, claim=old_claim) is None
+    assert store.learner_keepalive(run_id=run_id, claim=old_claim) is False
+    assert store.start_actor_link(run_id=run_id, claim=old_claim, start_step=0) is False
+    newest = store.newest_actor_message(run_id=run_id)
+    assert store.forget_actor_messages(run_id=run_id, claim=old_claim, checkpointed_id=newest) == 0
+    link = store.actor_link(run_id=run_id)
+    assert not link.learner_closed and link.start_step == 40 and link.policy_version == version
+    assert len(store.take_actor_messages(run_id=run_id, after_id=0)) == 3
+    assert store.learner_keepalive(run_id=run_id, claim=new_claim) is True
 
 
 def test_a_remote_actor_drives_the_robot_for_each_learner_and_holds_it_when_one_is_killed(

@@ -32,7 +32,7 @@ def test_the_actors_messages_are_kept_until_a_checkpoint_holds_them(link_store: 
     store = link_store
     run_id = store.create_run(env_id="robot.standin:PusherStandIn-v0", algorithm="vice_raq", config={}).id
     other = store.create_run(env_id="robot.standin:PusherStandIn-v0", algorithm="vice_raq", config={}).id
-    store.open_actor_link(run_id=run_id, start_step=None)
+    store.open_actor_link(run_id=run_id, claim=0, start_step=None)
 
     def post(run: int, items: list[str]) -> None:
         store.post_actor_messages(run_id=run, messages=[("state", {"items": [item]}, None, None) for item in items])
@@ -45,13 +45,13 @@ def test_the_actors_messages_are_kept_until_a_checkpoint_holds_them(link_store: 
     ids = [message.id for message in store.take_actor_messages(run_id=run_id, after_id=0)]
     assert names(ids[-1]) == []
     # taking deletes none, nor does a learner that opens the link anew: each is there for the next learner
-    store.open_actor_link(run_id=run_id, start_step=None)
+    store.open_actor_link(run_id=run_id, claim=0, start_step=None)
     assert names(0) == ["a", "b", "c", "d", "e", "f"]
     # a checkpoint holds the first four: the store forgets those before the fourth (the row the checkpoint's id
     # names stays: SQLite numbers a new row after the highest left), and the rest stay until a checkpoint holds them
-    assert store.forget_actor_messages(run_id=run_id, checkpointed_id=ids[3]) == 3
+    assert store.forget_actor_messages(run_id=run_id, claim=0, checkpointed_id=ids[3]) == 3
     assert names(0) == ["d", "e", "f"] and names(ids[3]) == ["e", "f"]
-    assert store.forget_actor_messages(run_id=run_id, checkpointed_id=ids[-1]) == 2
+    assert store.forget_actor_messages(run_id=run_id, claim=0, checkpointed_id=ids[-1]) == 2
     assert store.newest_actor_message(run_id=run_id) == ids[-1]  # (where a learner that takes the run over reads to)
     post(run_id, ["g"])
     assert names(ids[-1]) == ["g"] and names(0) == ["f", "g"]

@@ -8,6 +8,10 @@ order (post_actor_messages) and reads the link's state (actor_link); the learner
 (take_actor_messages). The messages are the robot's steps as they happened, kept until a checkpoint of the run holds
 them (forget_actor_messages): a learner that takes the run over trains on every step taken after its checkpoint
 (up to newest_actor_message before its actor starts). Ages are measured on the database's clock, never a host's.
+
+Each of the learner's writes carries the claim it holds the run with (Run.claim) and is skipped when the run has
+been claimed again since: a learner that stalled past the staleness limit and wakes after another took its run
+over never closes, stamps or publishes on the new learner's link, nor forgets the steps its checkpoint lacks.
 """
 
 from dataclasses import dataclass
@@ -54,34 +58,48 @@ class ActorLinkMessage:
 class ActorLinkStore(RobotStore, StoreBase):
     """Learner and remote actor: the link's state in robot_controls, the actor's messages in actor_messages."""
 
-    def open_actor_link(self, *, run_id: int, start_step: int | None) -> ActorLink:
+    def open_actor_link(self, *, run_id: int, claim: int, start_step: int | None) -> ActorLink:
         """The learner takes the link (the messages an earlier learner's checkpoint does not hold are kept for it);
         `start_step` (None: not yet) tells the actor where the run is. NotFound for an unknown run."""
-        with self.writing() as session:
-            values = {"start_step": start_step, "learner_closed": False, "learner_seen_at": self._db_now()}
-            self._update_or_create(session, run_id=run_id, values=values)
+        values = {"start_step": start_step, "learner_closed": False, "learner_seen_at": self._db_now()}
+        self._write_link(run_id=run_id, claim=claim, values=values)
         return self.actor_link(run_id=run_id)
 
-    def start_actor_link(self, *, run_id: int, start_step: int) -> None:
+    def start_actor_link(self, *, run_id: int, claim: int, start_step: int) -> bool:
         """The learner has read its checkpoint: the actor may begin its first episode at `start_step`."""
-        with self.writing() as session:
-            self._update_or_create(session, run_id=run_id, values={"start_step": int(start_step)})
+        return self._write_link(run_id=run_id, claim=claim, values={"start_step": int(start_step)})
 
-    def learner_keepalive(self, *, run_id: int) -> None:
+    def learner_keepalive(self, *, run_id: int, claim: int) -> bool:
         """The learner is alive (it calls this every quarter of a second)."""
-        with self.writing() as session:
-            self._update_or_create(session, run_id=run_id, values={"learner_seen_at": self._db_now()})
+        return self._write_link(run_id=run_id, claim=claim, values={"learner_seen_at": self._db_now()})
 
-    def publish_actor_policy(self, *, run_id: int) -> int:
-        """A new policy is in the checkpoint store: its version (one more than the last)."""
+    def publish_actor_policy(self, *, run_id: int, claim: int) -> int | None:
+        """A new policy is in the checkpoint store: its version (one more than the last); None when the run's
+        claim has moved on (nothing is published)."""
+        values = {"policy_version": RobotControl.policy_version + 1}
         with self.writing() as session:
-            self._update_or_create(session, run_id=run_id, values={"policy_version": RobotControl.policy_version + 1})
+            if not self._claimed_by(session, run_id=run_id, claim=claim):
+                return None
+            self._update_or_create(session, run_id=run_id, values=values)
             return int(session.scalar(select(RobotControl.policy_version).where(RobotControl.run_id == run_id)))
 
-    def close_actor_link(self, *, run_id: int) -> None:
+    def close_actor_link(self, *, run_id: int, claim: int) -> bool:
         """The learner lets go of the actor: it holds the arm and waits for the next learner."""
+        return self._write_link(run_id=run_id, claim=claim, values={"learner_closed": True, "start_step": None})
+
+    def _write_link(self, *, run_id: int, claim: int, values: dict[str, Any]) -> bool:
+        """The learner's side of the link, written while `claim` is the run's (False: skipped)."""
         with self.writing() as session:
-            self._update_or_create(session, run_id=run_id, values={"learner_closed": True, "start_step": None})
+            if not self._claimed_by(session, run_id=run_id, claim=claim):
+                return False
+            self._update_or_create(session, run_id=run_id, values=values)
+        return True
+
+    @staticmethod
+    def _claimed_by(session: Any, *, run_id: int, claim: int) -> bool:
+        """`claim` is the run's current one; NotFound for an unknown run."""
+        current = found(session.scalar(select(Run.claim).where(Run.id == run_id)), f"run {run_id}")
+        return int(current) == int(claim)
 
     def announce_actor(self, *, run_id: int, spaces: dict[str, Any]) -> None:
         """The actor is up: its action and observation spaces and its control rate, as JSON."""
@@ -147,11 +165,14 @@ class ActorLinkStore(RobotStore, StoreBase):
             newest = session.scalar(select(func.max(ActorMessage.id)).where(ActorMessage.run_id == run_id))
         return int(newest or 0)
 
-    def forget_actor_messages(self, *, run_id: int, checkpointed_id: int) -> int:
+    def forget_actor_messages(self, *, run_id: int, claim: int, checkpointed_id: int) -> int:
         """A checkpoint of the run holds the actor's messages up to `checkpointed_id`: those before it are deleted
-        (how many). The row `checkpointed_id` itself is kept: SQLite numbers a new row one past the highest left, so
-        an emptied table would number the next message below the checkpoint's."""
+        (how many; none when the run's claim has moved on). The row `checkpointed_id` itself is kept: SQLite numbers
+        a new row one past the highest left, so an emptied table would number the next message below the
+        checkpoint's."""
         with self.writing() as session:
+            if not self._claimed_by(session, run_id=run_id, claim=claim):
+                return 0
             deleted = session.execute(
                 delete(ActorMessage).where(ActorMessage.run_id == run_id, ActorMessage.id < checkpointed_id)
             )
