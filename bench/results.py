@@ -166,7 +166,7 @@ def robot_lines(by_preset: dict[str, list[dict[str, str]]]) -> list[str]:
     ]
     for preset, rows in by_preset.items():
         for row in rows:
-            steps = f"{int(row['steps_to_target']):,}" if row["steps_to_target"] else "not reached"
+            steps = steps_reached(row)
             wait = float(row["reset_wait_seconds"] or 0) / 60
             lines.append(
                 f"| {preset} | {row['seed']} | {steps} | {int(row['env_steps']):,} | {row['queries']} "
@@ -192,6 +192,11 @@ def plot_robot() -> None:
         print(f"plot: {ROBOT_PLOT.relative_to(ROOT)}")
 
 
+def steps_reached(row: dict[str, str]) -> str:
+    """A row's env steps to its target, or that it did not reach it."""
+    return f"{int(row['steps_to_target']):,}" if row["steps_to_target"] else "not reached"
+
+
 def per_seed_lines(by_task: dict[str, list[dict[str, str]]]) -> list[str]:
     lines = [
         "| task | seed | steps to target | env steps run | queries (yes) | minutes | within the target | device "
@@ -200,7 +205,7 @@ def per_seed_lines(by_task: dict[str, list[dict[str, str]]]) -> list[str]:
     ]
     for task, rows in by_task.items():
         for row in rows:
-            steps = f"{int(row['steps_to_target']):,}" if row["steps_to_target"] else "not reached"
+            steps = steps_reached(row)
             lines.append(
                 f"| {task} | {row['seed']} | {steps} | {int(row['env_steps']):,} "
                 f"| {row['queries']} ({row['queries_yes']}) "

@@ -10,8 +10,6 @@ what `limit_action` was told. `make("recording_arm:RecordingArm-v0")` with RAQ_E
 CameraBusy for a second), as most USB cameras do.
 """
 
-import errno
-import fcntl
 import os
 import time
 from pathlib import Path
@@ -19,8 +17,10 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
+from bench.logged_standin import calls as recorded_by
+from bench.logged_standin import open_exclusive_camera, record_call
 from learner.testing_envs import DotReach
-from robot.base import CameraBusy, RobotEnv
+from robot.base import RobotEnv
 
 LOG_VARIABLE = "RECORDING_ARM_LOG"
 ENV_ID = "recording_arm:RecordingArm-v0"
@@ -40,8 +40,7 @@ class RecordingArm(RobotEnv):
 
     def _record(self, what: str, value: float | None = None) -> None:
         if self.log:
-            with open(self.log, "a") as file:
-                file.write(f"{what} {time.monotonic() if value is None else value!r} {os.getpid()}\n")
+            record_call(self.log, what, value)
 
     def limit_action(self, action: np.ndarray, *, seconds: float | None = None) -> np.ndarray:
         self._record("limit", float("nan") if seconds is None else seconds)
@@ -82,12 +81,7 @@ class ExclusiveArm(RecordingArm):
 
     def __init__(self, **kwargs: object) -> None:
         super().__init__(**kwargs)  # type: ignore[arg-type]
-        self.camera = open(f"{self.log}.camera", "a")  # noqa: SIM115 - held open while the camera is
-        try:
-            fcntl.flock(self.camera, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            self.camera.close()
-            raise CameraBusy(errno.EBUSY, "the camera is open in another process: device busy") from None
+        self.camera = open_exclusive_camera(f"{self.log}.camera")
         self._record("open")
 
     def close(self) -> None:
@@ -95,14 +89,6 @@ class ExclusiveArm(RecordingArm):
         if not self.camera.closed:
             self._record("close")
             self.camera.close()
-
-
-def recorded_by(log: Path) -> list[tuple[str, float, int]]:
-    """The log's events in order: (what, monotonic time, the process's id)."""
-    if not log.exists():
-        return []
-    lines = log.read_text().split("\n")[:-1]  # (a line still being written has no newline yet)
-    return [(what, float(at), int(pid)) for what, at, pid in (line.split(" ") for line in lines)]
 
 
 def recorded(log: Path) -> list[tuple[str, float]]:

@@ -56,7 +56,7 @@ def test_a_run_starts_while_the_camera_panel_is_open_and_the_server_never_moves_
         run_id = created.json()["id"]
         learner = subprocess_learner(robot_env)
         try:
-            wait_for(lambda: moves(log, "action") >= 5 or learner.poll() is not None, 120, "the arm to move")
+            wait_for(lambda: moves(log, "action") >= 5 or learner.poll() is not None, 180, "the arm to move")
             assert learner.poll() is None, learner.communicate(timeout=30)[0].decode()
             assert store.get_run(run_id=run_id).status == RunStatus.TRAINING
             asked = len(answers)

@@ -10,6 +10,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 import pytest
 import sqlalchemy as sa
@@ -194,13 +195,7 @@ def test_a_remote_actor_drives_the_robot_for_each_learner_and_holds_it_when_one_
         output = actor.communicate(timeout=30)[0].decode()
     finally:
         done.set()
-        for process in (learner, actor):
-            if process.poll() is None:
-                process.kill()
-        output = output or actor.communicate(timeout=30)[0].decode()
-        learner.wait(timeout=30)
-        learner_log.close()
-        print("actor:", output, "learner:", (settings.data_dir / "learner.log").read_text(), sep="\n")
+        output = end_learner_and_actor(learner, actor, learner_log, output)
     assert actor.returncode == 0, output
     assert f"arm {ActorState.LEARNER_GONE}" in output
     assert "run finished" in output
@@ -215,3 +210,17 @@ def reset_and_answer(store: Store, run_id: int, done: threading.Event) -> None:
         for query in store.pending_queries(run_id=run_id):
             store.answer_query(query_id=query.id, success=bool(query.ground_truth_success), labeler="oracle")
         time.sleep(0.02)
+
+
+def end_learner_and_actor(
+    learner: subprocess.Popen, actor: subprocess.Popen, learner_log: BinaryIO, output: str
+) -> str:
+    """Kill what still runs; print both outputs (the actor's, read here unless given, and the learner's log)."""
+    for process in (learner, actor):
+        if process.poll() is None:
+            process.kill()
+    output = output or actor.communicate(timeout=30)[0].decode()
+    learner.wait(timeout=30)
+    learner_log.close()
+    print("actor:", output, "learner:", Path(learner_log.name).read_text(), sep="\n")
+    return output

@@ -16,7 +16,13 @@ from action_values_arm import ENV_ID as ARM_ID
 from conftest import create_run, learn_once_beside
 from recording_arm import LOG_VARIABLE, recorded
 from test_actor import real_time_config
-from test_remote_actor import host_env, link_store, reset_and_answer, wait_until  # noqa: F401 - link_store: a fixture
+from test_remote_actor import (  # noqa: F401 - link_store: a fixture
+    end_learner_and_actor,
+    host_env,
+    link_store,
+    reset_and_answer,
+    wait_until,
+)
 
 from contract.settings import Settings
 from contract.store import RunStatus, Store
@@ -109,13 +115,7 @@ def test_a_learner_that_takes_a_run_over_trains_on_every_step_the_robot_took(
         assert store.get_run(run_id=run_id).status == RunStatus.FINISHED
         output = actor.communicate(timeout=30)[0].decode()
     finally:
-        for process in (learner, actor):
-            if process.poll() is None:
-                process.kill()
-        output = output or actor.communicate(timeout=30)[0].decode()
-        learner.wait(timeout=30)
-        learner_log.close()
-        print("actor:", output, "learner:", (tmp_path / "learner.log").read_text(), sep="\n")
+        output = end_learner_and_actor(learner, actor, learner_log, output)
     final = load_checkpoint(checkpoint_path(settings.checkpoint_dir, run_id))
     assert final is not None and final["step"] == TOTAL_STEPS
     replay = final["replay"]["actions"].numpy().astype(np.float64)
