@@ -6,7 +6,8 @@ presses Ready, through, in turn:
 1. SIGSTOP of the learner driving the run for RAQ_STALE_HEARTBEAT_SECONDS + STOP_EXTRA_SECONDS, then SIGCONT
    (the other learner takes the run over meanwhile);
 2. SIGKILL of the driving learner, three times, a new learner started after each (as `raq up` restarts one);
-3. the database's writes locked for LOCK_SECONDS (another connection holds an exclusive SQLite transaction);
+3. the database's writes locked for LOCK_SECONDS (another connection holds an exclusive SQLite transaction), the
+   arm held meanwhile and resumed by the person after it;
 4. the New run form's preview and the Camera panel of a second `raq serve`, while the run acts.
 
     python bench/robot_faults.py            # each learner's actor beside it
@@ -273,6 +274,8 @@ def main() -> int:
         bench.wait_for_moves(after=time.monotonic(), count=10)
         print(f"the database's writes locked for {LOCK_SECONDS:g} s", flush=True)
         bench.lock_database(LOCK_SECONDS)
+        time.sleep(2.0)  # the actor held the arm when the database went silent; a person resumes it
+        request(f"{url}/api/runs/{bench.run_id}/robot/resume", "POST")
         bench.wait_for_moves(after=time.monotonic(), count=10)
 
         second = bench.serve("serve-2")
