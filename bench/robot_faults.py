@@ -15,7 +15,9 @@ presses Ready, through, in turn:
 
 It prints, from the log: the most processes that sent actions within any one control period (one driver: 1), the
 shortest interval between two actions, the robot steps lost at the takeovers (the actions the arm took before the
-new learner's actor moved it, less the step the run resumed at: steps its replay never got), the processes of a
+new learner's actor moved it, less the step the run resumed at and the steps lost before: steps no replay got;
+an actor beside its learner hands its steps over through a pipe, so its learner's crash loses those since the last
+checkpoint, while an actor linked through the database keeps them in the store), the processes of a
 killed learner still alive STRAY_AFTER_SECONDS later, and the arm moves made by others: a move by a process that
 never drove the arm (a server), or an action by a driver after a later driver's first. Writes <out>/figures.json.
 """
@@ -141,19 +143,31 @@ class Bench:
     def takeover(self, fault: str, at: float, since_event: int) -> None:
         """After a learner was silenced at `at`: the arm moves again; the step the run resumed at (its events after
         `since_event`) against the actions the arm took before."""
-        first = self.wait_for_moves(after=at + 0.5)
+        held = self.wait_for_hold(after=at)
+        first = self.wait_for_moves(after=held)
         before = sum(1 for moved, _ in self.actions() if moved < first)
         messages = [event.message for event in self.store.events(run_id=self.run_id, since_id=since_event,
                                                                  limit=100_000)]  # (newest first)  # fmt: skip
         starts = [int(found.group(1)) for message in messages for found in [STARTS_AT.search(message)] if found]
         resumed = [int(found.group(1)) for message in messages for found in [RESUMED.search(message)] if found]
         at_step = starts[0] if starts else resumed[0] if resumed else 0
+        lost_so_far = sum(int(takeover["lost"]) for takeover in self.takeovers)
         self.takeovers.append({
-            "fault": fault, "actions_before": before, "resumed_at_step": at_step, "lost": max(0, before - at_step),
-            "counted_twice": max(0, at_step - before),
+            "fault": fault, "actions_before": before, "resumed_at_step": at_step,
+            "lost": max(0, before - at_step - lost_so_far), "counted_twice": max(0, at_step + lost_so_far - before),
         })  # fmt: skip
         print(f"{fault}: the arm moved again {first - at:.1f} s later; {before} actions before, the run resumed at "
               f"step {at_step}", flush=True)  # fmt: skip
+
+    def wait_for_hold(self, after: float) -> float:
+        """The time the arm was first held after `after` (the silenced learner's actor stopping)."""
+        deadline = time.monotonic() + MOVING_SECONDS
+        while time.monotonic() < deadline:
+            held = [at for what, at, _ in calls(self.log) if what == "hold" and at > after]
+            if held:
+                return held[0]
+            time.sleep(0.2)
+        raise SystemExit(f"the arm was not held within {MOVING_SECONDS:.0f} s of the fault")
 
     def descendants(self, pid: int) -> set[int]:
         found, frontier = set(), {pid}
