@@ -257,7 +257,7 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
         for log in logs.values():
             log.close()
     figures["wall_minutes"] = round((time.monotonic() - started) / 60, 1)
-    figures |= run_figures(store, run.id, read_evaluations(evaluations))
+    figures |= run_figures(store, run.id, read_evaluations(evaluations), warm_up=config.initial_random_steps)
     figures["resets"] = len(presses)
     figures["effort"] = run_effort(store, run.id).columns()
     figures["commit"] = current_commit()
@@ -288,8 +288,9 @@ def probe(
     figures["held_after_sigkill_seconds"] = wait_for_state(url, run_id, "held safe: learner gone", timeout=10)
 
 
-def run_figures(store: Store, run_id: int, evaluations: list[dict]) -> dict:
-    """The timing, pace and learning figures of a finished run, from its metrics and its evaluations."""
+def run_figures(store: Store, run_id: int, evaluations: list[dict], *, warm_up: int) -> dict:
+    """The timing, pace and learning figures of a finished run, from its metrics and its evaluations; the pace
+    over the windows after the warm-up's `warm_up` steps (no update is due before)."""
     names = ["actor/period_ms_mean", "actor/period_ms_p99", "actor/period_ms_max", "queries/asked", PACE_METRIC]
     metrics = {name: [(m.step, m.value) for m in store.metrics(run_id=run_id, names=[name])] for name in names}
     figures: dict[str, object] = {"env_steps": int(store.get_run(run_id=run_id).step or 0)}
@@ -299,7 +300,7 @@ def run_figures(store: Store, run_id: int, evaluations: list[dict]) -> dict:
         figures["period_ms_p99_median_window"] = round(float(np.median(p99)), 1)
         figures["period_ms_p99_worst_window"] = round(float(max(p99)), 1)
         figures["period_ms_max"] = round(float(max(v for _, v in metrics["actor/period_ms_max"])), 1)
-    pace = [value for _, value in metrics[PACE_METRIC]]
+    pace = [value for step, value in metrics[PACE_METRIC] if step > warm_up]
     figures["updates_per_step"] = round(float(np.mean(pace)), 2) if pace else None
     figures["evaluations"] = evaluations
     reached = next((row["step"] for row in evaluations if row["success_rate"] >= TARGET_RATE), None)
