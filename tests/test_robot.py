@@ -152,3 +152,24 @@ def test_the_stand_in_pusher_is_a_robot_env_gymnasium_accepts() -> None:
     assert env.spec.max_episode_steps == 100 and env.unwrapped.control_hz == 5.0
     env.close()
     assert env.unwrapped.held
+
+
+def test_the_stand_ins_goal_photos_are_success_states_its_camera_sees_as_it_sees_observations() -> None:
+    """robot.standin.goal_photos: camera frames of distinct success states (it keeps only those), whose model copy
+    (as the Camera panel keeps a photo) is exactly the observation the stand-in makes of the same frame."""
+    from robot.standin import PusherStandIn, goal_photos
+
+    photos = goal_photos(3, seed=1, camera_size=96)
+    assert len(photos) == 3 and all(photo.shape == (96, 128, 3) for photo in photos)
+    assert not np.array_equal(photos[0], photos[1])  # different states
+    robot = PusherStandIn(image_size=48, camera_size=96)
+    try:
+        for photo in photos:
+            png = io.BytesIO()
+            Image.fromarray(photo).save(png, format="PNG")
+            kept = prepare_upload(png.getvalue(), filename="goal.png", model_size=48, max_bytes=10**7, max_pixels=10**7)
+            assert np.array_equal(
+                robot.observe(photo), np.asarray(Image.open(io.BytesIO(kept.model_png)).convert("RGB"))
+            )
+    finally:
+        robot.close()
