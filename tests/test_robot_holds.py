@@ -6,7 +6,7 @@ from sqlalchemy import update
 
 from contract.store import Store
 from contract.store.models import RobotHold, Run
-from contract.store.robot_holds import HOLD_LEASE_SECONDS, MOVE_WITHIN_SECONDS, robot_name
+from contract.store.robot_holds import HOLD_LAPSES_SECONDS, MOVE_WITHIN_SECONDS, robot_name
 
 ROBOT = robot_name("robot.standin:PusherStandIn-v0")
 
@@ -52,7 +52,7 @@ def test_a_second_run_of_the_robot_waits_until_the_first_lets_go(store: Store) -
     assert not store.holds_robot(robot=ROBOT, holder="1@host")
 
 
-def test_a_hold_not_renewed_for_its_lease_is_free_and_its_old_holder_may_not_move(store: Store) -> None:
+def test_a_hold_not_renewed_in_time_lapses_and_its_old_holder_may_not_move(store: Store) -> None:
     first, first_claim = claimed_run(store, "first")
     second, second_claim = claimed_run(store, "second")
     assert store.take_robot(robot=ROBOT, run_id=first, claim=first_claim, holder="1@host").taken
@@ -61,7 +61,7 @@ def test_a_hold_not_renewed_for_its_lease_is_free_and_its_old_holder_may_not_mov
     assert not store.take_robot(robot=ROBOT, run_id=second, claim=second_claim, holder="2@host").taken
     assert store.renew_robot(robot=ROBOT, holder="1@host")
     assert store.holds_robot(robot=ROBOT, holder="1@host")
-    age_hold(store, HOLD_LEASE_SECONDS + 0.5)
+    age_hold(store, HOLD_LAPSES_SECONDS + 0.5)
     assert store.take_robot(robot=ROBOT, run_id=second, claim=second_claim, holder="2@host").taken
     assert not store.renew_robot(robot=ROBOT, holder="1@host")
     assert not store.holds_robot(robot=ROBOT, holder="1@host")
@@ -76,9 +76,9 @@ def test_an_actor_of_a_claim_taken_over_can_neither_renew_nor_take(store: Store)
     assert not store.holds_robot(robot=ROBOT, holder="old@host")
     assert not store.renew_robot(robot=ROBOT, holder="old@host")
     assert store.take_robot(robot=ROBOT, run_id=run_id, claim=claim, holder="old@host").stale_claim
-    # the new learner's actor waits out the old actor's lease: it may still be finishing its last move
+    # the new learner's actor waits until the old actor's hold lapses: it may still be finishing its last move
     assert store.take_robot(robot=ROBOT, run_id=run_id, claim=new_claim, holder="new@host").busy_with == run_id
-    age_hold(store, HOLD_LEASE_SECONDS + 0.5)
+    age_hold(store, HOLD_LAPSES_SECONDS + 0.5)
     assert store.take_robot(robot=ROBOT, run_id=run_id, claim=new_claim, holder="new@host").taken
 
 

@@ -5,7 +5,7 @@ first move, for the claim its learner holds the run with, and renews the row whi
 (renew_robot, from its control thread); before each move it checks that it still holds it (holds_robot). A
 learner that takes a run over increases the run's claim (Store.claim_next_run): from then on the old actor's
 renewals and checks fail, and it sends nothing more. Another run of the same robot takes the row only once it is
-released or HOLD_LEASE_SECONDS old, so the old actor has stopped (its check allows a move only within
+released or HOLD_LAPSES_SECONDS old, so the old actor has stopped (its check allows a move only within
 MOVE_WITHIN_SECONDS of its last renewal). Times are the database's clock, never a host's.
 """
 
@@ -16,22 +16,21 @@ from dataclasses import dataclass
 from sqlalchemy import delete, insert, or_, select, update
 from sqlalchemy.exc import IntegrityError
 
+from contract.settings import get_settings
 from contract.store.base import StoreBase
 from contract.store.models import RobotHold, Run, RunStatus
 
 CLAIMED_RUN_SECONDS = 60.0
 """A claimed run of an env whose learner beat within this many seconds is about to drive (or drives) its robot."""
-HOLD_LEASE_SECONDS = 3.0
+HOLD_LAPSES_SECONDS = 3.0
 """A robot's hold not renewed for this long is free for another run's actor."""
 MOVE_WITHIN_SECONDS = 1.0
-"""An actor moves the robot only while its hold was renewed within this many seconds (well inside the lease)."""
-ROBOT_HOST_VARIABLE = "RAQ_ROBOT_HOST"
-"""The host part of a robot's name, where one machine drives robots that are not one (default: the hostname)."""
+"""An actor moves the robot only while its hold was renewed within this many seconds (well before the hold lapses)."""
 
 
 def robot_name(env_id: str) -> str:
-    """The robot an env id drives on this host: "<host>/<env id>"."""
-    return f"{os.environ.get(ROBOT_HOST_VARIABLE) or socket.gethostname()}/{env_id}"
+    """The robot an env id drives on this host: "<host>/<env id>" (the host: RAQ_ROBOT_HOST, else the hostname)."""
+    return f"{get_settings().robot_host or socket.gethostname()}/{env_id}"
 
 
 def holder_name() -> str:
@@ -57,7 +56,7 @@ class RobotHoldStore(StoreBase):
 
     def take_robot(self, *, robot: str, run_id: int, claim: int, holder: str) -> RobotTake:
         """Hold `robot` for the run at `claim`: when nobody holds it, `holder` does already, or the hold is
-        HOLD_LEASE_SECONDS old. Else the run that holds it."""
+        HOLD_LAPSES_SECONDS old. Else the run that holds it."""
         with self.writing() as session:
             if session.scalar(select(Run.claim).where(Run.id == run_id)) != claim:
                 return RobotTake(taken=False, stale_claim=True)
@@ -66,7 +65,7 @@ class RobotHoldStore(StoreBase):
                 update(RobotHold)
                 .where(
                     RobotHold.robot == robot,
-                    or_(RobotHold.holder == holder, RobotHold.renewed_at < self._db_now(HOLD_LEASE_SECONDS)),
+                    or_(RobotHold.holder == holder, RobotHold.renewed_at < self._db_now(HOLD_LAPSES_SECONDS)),
                 )
                 .values(**values)
             ).rowcount
@@ -114,11 +113,11 @@ class RobotHoldStore(StoreBase):
             session.execute(delete(RobotHold).where(RobotHold.robot == robot, RobotHold.holder == holder))
 
     def robot_holder(self, *, robot: str) -> int | None:
-        """The run whose actor holds `robot` now (within its lease), or None."""
+        """The run whose actor holds `robot` now (renewed within HOLD_LAPSES_SECONDS), or None."""
         with self.reading() as session:
             run_id = session.scalar(
                 select(RobotHold.run_id).where(
-                    RobotHold.robot == robot, RobotHold.renewed_at >= self._db_now(HOLD_LEASE_SECONDS)
+                    RobotHold.robot == robot, RobotHold.renewed_at >= self._db_now(HOLD_LAPSES_SECONDS)
                 )
             )
         return None if run_id is None else int(run_id)
