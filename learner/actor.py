@@ -1,8 +1,9 @@
 """The real-time actor: a robot env stepped at its own control rate in a process of its own, never waiting for
 the learner.
 
-The learner starts the actor (`ActorProcess`), sends it fresh policy weights every `policy_sync_seconds` and a
-keep-alive four times a second, and reads the actor's transitions as they come. The actor's loop, once per
+The learner starts the actor (learner/actor_link.py: `ActorProcess` beside it, or `raq actor` on the robot's
+host, both linked through the store), sends it fresh policy weights every `policy_sync_seconds` and a keep-alive
+four times a second, and reads the actor's transitions as they come. The actor's loop, once per
 control period (1 / control_hz seconds): act (uniformly at random until the warm-up's end or the first weights,
 then the policy, sampling), step the env, send the transition, and sleep to the next period (`Pace`: a late step is
 sent late and the period restarts from it, no catching up). Between episodes it sends the arm to its start pose
@@ -14,21 +15,16 @@ What the actor shares with the person goes through the store (`Store.report_acto
 pages): the camera's newest frame, its state, and the controls it obeys (Stop robot, Resume, Ready). A thread of
 its own reads the controls every CONTROL_POLL_SECONDS, so a stop is honoured within one control period.
 
-The watchdog: the arm is held safe (`env.stop()`) as soon as the learner's pipe closes (the learner died), its
-keep-alives have been silent `watchdog_seconds`, or the store has been unreachable that long. Without a learner
-the actor exits; after a database outage it stays stopped until a person presses Resume.
+The watchdog: the arm is held safe (`env.stop()`) as soon as the link says the learner is gone (its process
+died), its keep-alives have been silent `watchdog_seconds`, or the store has been unreachable that long. Without
+a learner the actor exits; after a database outage it stays stopped until a person presses Resume.
 """
 
 import contextlib
-import multiprocessing
 import os
-import queue
-import sys
 import threading
 import time
-import traceback
 from dataclasses import dataclass, field
-from multiprocessing.connection import Connection
 from typing import Any
 
 import gymnasium
@@ -40,12 +36,8 @@ from contract.envs import display_image, encode_png, make_env, model_image, scal
 from contract.store import Store
 from contract.store.robot_holds import holder_name, robot_name
 from learner.actor_messages import (
-    ActorError,
-    ActorMessage,
     Close,
     EpisodeStart,
-    Failure,
-    KeepAlive,
     PolicyWeights,
     Ready,
     Start,
@@ -68,8 +60,6 @@ LATE_SHARE = 0.1
 """A step later than this share of the control period after its tick is late: the period restarts from it."""
 START_SECONDS = 120.0
 """How long the actor may take to import its modules and make (connect to) its env."""
-FAILURE_FLUSH_SECONDS = 5.0
-"""How long a failed actor's process waits for its traceback to reach the learner before it ends."""
 HOLD_RENEW_SECONDS = 0.25
 """How often the control thread renews the actor's hold on its robot (the hold allows moves for
 MOVE_WITHIN_SECONDS after each renewal)."""
@@ -176,10 +166,10 @@ class ActorLoop:
     """The actor's state in its process."""
 
     def __init__(
-        self, settings: ActorSettings, connection: Connection | Any, outbox: Any, env: gymnasium.Env | None = None
+        self, settings: ActorSettings, connection: Any, outbox: Any, env: gymnasium.Env | None = None
     ) -> None:
-        """`connection` (poll, recv) brings the learner's messages and `outbox` (put) takes the actor's: a pipe and
-        a queue to a learner beside it, or a link through the store (learner/actor_link.py). `env`: one already
+        """`connection` (poll, recv) brings the learner's messages and `outbox` (put) takes the actor's: the ends of
+        its link through the store (learner/actor_link.py). `env`: one already
         made (a remote actor keeps its robot between learners), else the run's env is made here."""
         torch.set_num_threads(1)
         with contextlib.suppress(OSError):  # the robot's clock before the learner's updates, where allowed
@@ -204,6 +194,7 @@ class ActorLoop:
         self.step = 0  # (the learner's "start" says where the run is)
         self.has_policy = False
         self.last_keepalive = time.monotonic()
+        self.store_away = False  # the watchdog last found the store unreachable
         self.controls = Controls()
         self.wake = threading.Event()  # set by the control thread when a stop comes in
         self.state = ActorState.STARTING
@@ -251,7 +242,7 @@ class ActorLoop:
 
     # ------------------------------------------------------------------ the watchdog
     def _read_learner(self) -> None:
-        """Take the learner's messages (policies, keep-alives, start, close); a closed pipe means it is gone.
+        """Take the learner's messages (policies, keep-alives, start, close); EOFError means it is gone.
         Called between the steps, so that loading a policy never delays one."""
         while self.exit_reason is None and self.connection.poll():
             try:
@@ -274,11 +265,15 @@ class ActorLoop:
         if self.hold_lost:
             return ActorState.CLAIM_LOST
         now, limit = time.monotonic(), float(self.config.watchdog_seconds)
-        if now - self.controls.last_answer > limit:  # (first: an actor linked through the store loses both)
+        if now - self.controls.last_answer > limit:
+            self.store_away = True
             return ActorState.DATABASE_GONE
-        if now - self.last_keepalive > limit:
+        # the learner's keep-alives cross the same store: they count while it answers, and again from its return
+        if self.store_away:
+            self.store_away, self.last_keepalive = False, max(self.last_keepalive, now)
+        if self.controls.last_answer - self.last_keepalive > limit:
             self._read_learner()  # (keep-alives may be waiting unread after a long reset)
-            if self.exit_reason is not None or time.monotonic() - self.last_keepalive > limit:
+            if self.exit_reason is not None or self.controls.last_answer - self.last_keepalive > limit:
                 return self.exit_reason or ActorState.LEARNER_GONE
         return None
 
@@ -533,121 +528,3 @@ class ActorLoop:
         """What the live view shows (and a goal capture takes): a robot env's whole camera frame, else `display`."""
         frame = getattr(self.env.unwrapped, "last_frame", None)
         return display if frame is None else np.asarray(frame)
-
-
-def serve(settings: ActorSettings, connection: Connection, outbox: Any) -> None:
-    """The actor process: run until the learner closes it or goes away (the arm held), then end; an error goes to
-    the learner, given FAILURE_FLUSH_SECONDS to reach its pipe.
-
-    The process ends with os._exit, not by returning: a multiprocessing queue's exit waits until everything put
-    has been written to its pipe, and a step larger than the pipe's buffer that a dead learner never reads would
-    keep the actor alive for good (the process holds the pipe's read end itself, so the write never fails)."""
-    code, flush_seconds = 0, 0.0
-    try:
-        ActorLoop(settings, connection, outbox).run()
-    except Exception:
-        outbox.put(Failure(traceback.format_exc()))
-        code, flush_seconds = 1, FAILURE_FLUSH_SECONDS
-    finally:
-        _end_process(outbox, code, flush_seconds)
-
-
-def _end_process(outbox: Any, code: int, flush_seconds: float) -> None:
-    """End the actor process now, its queue's waiting messages given `flush_seconds` to be written."""
-    with contextlib.suppress(Exception):
-        outbox.close()
-        flusher = threading.Thread(target=outbox.join_thread, name="actor-flush", daemon=True)
-        flusher.start()
-        flusher.join(flush_seconds)
-    with contextlib.suppress(Exception):
-        sys.stdout.flush()
-        sys.stderr.flush()
-    os._exit(code)
-
-
-# ====================================================================== the learner's side
-class ActorProcess:
-    """The learner's handle on its actor: start it, send it policies, take its messages, close it."""
-
-    def __init__(self, settings: ActorSettings) -> None:
-        context = multiprocessing.get_context("spawn")
-        self.connection, child = context.Pipe()
-        self.outbox = context.Queue()
-        self.process = context.Process(
-            target=serve, args=(settings, child, self.outbox), name=f"actor-run-{settings.run_id}", daemon=True
-        )
-        self.process.start()
-        child.close()
-        self.send_lock = threading.Lock()
-        self.closed = threading.Event()
-        self.display: np.ndarray | None = None
-        message = self._get(START_SECONDS)
-        if not isinstance(message, Ready):
-            self.close()
-            if isinstance(message, Failure):
-                raise ActorError(f"the actor failed to start: {message.traceback.strip().splitlines()[-1]}")
-            raise ActorError(f"the actor did not start within {START_SECONDS:.0f} s")
-        self.action_space, self.observation_space = message.action_space, message.observation_space
-        self.keepalive = threading.Thread(target=self._keep_alive, name="actor-keepalive", daemon=True)
-        self.keepalive.start()
-
-    # the loop reads these as it reads a training env's
-    @property
-    def unwrapped(self) -> "ActorProcess":
-        return self
-
-    def render(self) -> np.ndarray | None:
-        """The display frame sent with the last message (the state of the newest observation)."""
-        return self.display
-
-    def start(self, step: int, claim: int) -> None:
-        """The run is at `step` (after its checkpoint): the actor may begin its first episode, for `claim`."""
-        self._send(Start(step, claim))
-
-    def send_policy(self, modules: dict[str, dict[str, Any]]) -> None:
-        self._send(PolicyWeights(modules))
-
-    def next_message(self, timeout: float) -> ActorMessage | None:
-        """The actor's next message within `timeout` seconds, or None; ActorError for its failure."""
-        message = self._get(timeout)
-        if isinstance(message, Failure):
-            raise ActorError(f"the actor failed:\n{message.traceback}")
-        if isinstance(message, EpisodeStart | Transition):
-            self.display = message.display
-        return message
-
-    def _get(self, timeout: float) -> Any:
-        try:
-            return self.outbox.get(timeout=timeout)
-        except queue.Empty:
-            if not self.process.is_alive():
-                raise ActorError(f"the actor exited (code {self.process.exitcode})") from None
-            return None
-
-    def _send(self, message: Any) -> None:
-        with self.send_lock:
-            if not self.closed.is_set():
-                self.connection.send(message)
-
-    def _keep_alive(self) -> None:
-        while not self.closed.wait(KEEPALIVE_SECONDS):
-            try:
-                self._send(KeepAlive())
-            except (BrokenPipeError, OSError):
-                return
-
-    def close(self) -> None:
-        """Tell the actor to hold the arm and exit; wait for it (a few seconds), else end it. Once only."""
-        if self.closed.is_set():
-            return
-        with contextlib.suppress(BrokenPipeError, OSError):
-            self._send(Close())
-        self.closed.set()
-        self.process.join(timeout=10)
-        if self.process.is_alive():
-            self.process.terminate()
-            self.process.join(timeout=5)
-        with contextlib.suppress(Exception):
-            self.outbox.close()
-            self.outbox.cancel_join_thread()
-        self.connection.close()

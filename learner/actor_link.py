@@ -1,28 +1,35 @@
-"""An actor on another host than its learner: the robot's host runs `raq actor --run ID`, the learner trains on
-its own (a GPU box, say), and the two share only what the rest of the product shares: the database and the
-checkpoint store (a folder both mount, or object storage by URL).
+"""The link between a learner and its real-time actor, through what the rest of the product shares: the database
+and the checkpoint store (a folder both mount, or object storage by URL). The actor runs beside its learner
+(`ActorProcess`, a child process) or on the robot's host (`raq actor --run ID`, with the learner on a GPU box, say);
+the link is the same, so that every step the robot takes is stored as it happens.
 
-- The learner's end (`RemoteActor`) has the local actor's interface (learner/actor.py's ActorProcess): it opens
-  the link, stamps a keep-alive four times a second, writes each new pi to the checkpoint store
-  (ACTOR_POLICY_FILENAME) and publishes its version, and takes the actor's steps from the database in order; they
-  stay there until a checkpoint holds them, so the learner that takes a run over first takes those its checkpoint
-  does not hold (`resume`).
-- The actor's end (`StoreLink`) gives learner/actor.py's `ActorLoop` the pipe and queue it expects: a thread polls the
-  link (new keep-alive, start, close, a newer policy: loaded from the checkpoint store between the steps) and
-  another posts the actor's messages, so the robot's clock never waits for the database.
+- The learner's end (`RemoteActor`; `ActorProcess` starts its actor first) opens the link, stamps a keep-alive four
+  times a second, writes each new pi to the checkpoint store (ACTOR_POLICY_FILENAME) and publishes its version, and
+  takes the actor's steps from the database in order; they stay there until a checkpoint holds them, so the learner
+  that takes a run over first takes those its checkpoint does not hold (`resume`).
+- The actor's end (`StoreLink`) gives learner/actor.py's `ActorLoop` the connection and outbox it expects: a thread
+  polls the link (new keep-alive, start, close, a newer policy: loaded from the checkpoint store between the steps)
+  and another posts the actor's messages, so the robot's clock never waits for the database.
+- `serve_child` is the actor beside its learner: it drives the robot for that learner only, and once the learner's
+  process is gone (its parent changes) it holds the arm and exits, its last steps posted first.
 - `serve_remote` is `raq actor`: it makes the robot's env once and drives it for every learner that opens the
   run's link, holding the arm safe between them; it ends when the run ends or on Ctrl-C.
 
-The watchdog is the local actor's: no keep-alive for `watchdog_seconds` (the learner died, or its host is cut
-off) or no answer from the database that long, and the arm is held safe.
+The watchdog is the actor loop's: no keep-alive for `watchdog_seconds` (the learner died, or its host is cut off)
+or no answer from the database that long, and the arm is held safe.
 """
 
 import contextlib
 import io
+import multiprocessing
+import os
 import queue
 import threading
 import time
+import traceback
 from collections import deque
+from collections.abc import Callable
+from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
@@ -33,7 +40,7 @@ from contract.checkpoint_location import ACTOR_POLICY_FILENAME, checkpoint_url, 
 from contract.config import TrainConfig
 from contract.envs import control_rate, encode_png, jsonable, make_env
 from contract.store import RunStatus, Store, is_transient
-from learner.actor import KEEPALIVE_SECONDS, ActorLoop, ActorSettings, ActorState
+from learner.actor import KEEPALIVE_SECONDS, START_SECONDS, ActorLoop, ActorSettings, ActorState
 from learner.actor_messages import (
     ActorError,
     ActorMessage,
@@ -118,12 +125,21 @@ def spaces_of(announced: dict[str, Any]) -> tuple[spaces.Box, spaces.Box]:
 
 
 # ====================================================================== the actor's end
-class StoreLink:
-    """The actor's end: `connection` (poll, recv) has the learner's messages as a pipe would; `outbox` (put)
-    takes the actor's, posted by a thread of its own."""
+_LEARNER_GONE = object()
 
-    def __init__(self, store: Store, *, run_id: int, policy_url: str, hz: float) -> None:
+
+class StoreLink:
+    """The actor's end: `connection` (poll, recv) has the learner's messages as a pipe would (EOFError once the
+    learner's process is gone); `outbox` (put) takes the actor's, posted by a thread of its own."""
+
+    def __init__(
+        self, store: Store, *, run_id: int, policy_url: str, hz: float, parent_pid: int | None = None,
+        announced: Callable[[], None] | None = None,
+    ) -> None:  # fmt: skip
+        """`parent_pid`: the learner's process, the actor's parent (an actor beside it), whose end is the learner's;
+        `announced()` is called once the actor's spaces are in the store."""
         self.store, self.run_id, self.policy_url, self.hz = store, run_id, policy_url, hz
+        self.parent_pid, self.announced = parent_pid, announced
         self.inbox: queue.Queue[Any] = queue.Queue()
         self.outbox: queue.Queue[Any] = queue.Queue()
         self.connection = self  # (poll and recv below)
@@ -142,7 +158,10 @@ class StoreLink:
         return not self.inbox.empty()
 
     def recv(self) -> Any:
-        return self.inbox.get_nowait()
+        message = self.inbox.get_nowait()
+        if message is _LEARNER_GONE:
+            raise EOFError("the learner's process is gone")
+        return message
 
     def close(self) -> None:
         """Stop both threads, the actor's last messages posted first."""
@@ -153,6 +172,9 @@ class StoreLink:
     def _poll_link(self) -> None:
         """The learner's side: a new keep-alive is a beat; then the start, a newer policy, the close."""
         while not self.closed.wait(LINK_POLL_SECONDS):
+            if self.parent_pid is not None and os.getppid() != self.parent_pid:
+                self.inbox.put(_LEARNER_GONE)
+                return
             with contextlib.suppress(Exception):  # the store away: no beats, and the watchdog holds the arm
                 link = self.store.actor_link(run_id=self.run_id)
                 if link.learner_seen_at is not None and link.learner_seen_at != self.learner_seen_at:
@@ -171,8 +193,10 @@ class StoreLink:
                     return
 
     def _post(self) -> None:
-        """Post what waits in the outbox, in order, every POST_SECONDS (kept while the store is away)."""
+        """Post what waits in the outbox, in order, every POST_SECONDS (kept while the store is away); the actor's
+        Ready is its announcement."""
         waiting: list[tuple[str, dict[str, Any], bytes | None, bytes | None]] = []
+        ready: Ready | None = None
         while True:
             closing = self.closed.wait(POST_SECONDS)
             while True:
@@ -181,13 +205,16 @@ class StoreLink:
                 except queue.Empty:
                     break
                 if isinstance(message, Ready):
-                    with contextlib.suppress(Exception):
-                        self.store.announce_actor(
-                            run_id=self.run_id,
-                            spaces=spaces_json(message.action_space, message.observation_space, self.hz),
-                        )
-                    continue
-                waiting.append(encode_message(message))
+                    ready = message
+                else:
+                    waiting.append(encode_message(message))
+            if ready is not None:
+                with contextlib.suppress(Exception):  # (asked again at the next post)
+                    spaces = spaces_json(ready.action_space, ready.observation_space, self.hz)
+                    self.store.announce_actor(run_id=self.run_id, spaces=spaces)
+                    ready = None
+                    if self.announced is not None:
+                        self.announced()
             if waiting:
                 try:
                     self.store.post_actor_messages(run_id=self.run_id, messages=waiting)
@@ -197,6 +224,35 @@ class StoreLink:
                         return
             if closing:
                 return
+
+
+def serve_child(settings: ActorSettings, policy_url: str, parent_pid: int, started: Connection) -> None:
+    """The actor beside its learner, in a process of its own: drive the robot for that learner until it closes the
+    link or its process is gone (the arm held first), then end. `started` gets None once the actor is announced, or
+    the traceback of why it could not start; a failure after that goes to the learner through the link.
+
+    The process ends with os._exit once the link's last messages are posted: nothing it started may keep it alive."""
+    code = 0
+    link = StoreLink(
+        Store(settings.database_url), run_id=settings.run_id, policy_url=policy_url, hz=settings.control_hz,
+        parent_pid=parent_pid, announced=lambda: started.send(None),
+    )  # fmt: skip
+    try:
+        actor = ActorLoop(settings, link.connection, link.outbox)
+    except Exception:
+        with contextlib.suppress(Exception):
+            started.send(traceback.format_exc())
+        os._exit(1)
+    try:
+        actor.run()
+    except Exception:
+        link.outbox.put(Failure(traceback.format_exc()))
+        code = 1
+    finally:
+        link.close()
+        with contextlib.suppress(Exception):
+            started.close()
+        os._exit(code)
 
 
 def serve_remote(store: Store, *, run_id: int, checkpoint_base: str, stop: threading.Event | None = None) -> str:
@@ -267,12 +323,11 @@ def _wait_for_learner(
 
 # ====================================================================== the learner's end
 class RemoteActor:
-    """The learner's handle on an actor on another host, with ActorProcess's interface."""
+    """The learner's handle on an actor on another host, with the interface of the actor beside it."""
 
     def __init__(self, store: Store, *, run_id: int, claim: int, checkpoint_file: str, heartbeat: Any = None) -> None:
         """Open the link for the run's `claim` (this learner's: every write to the link carries it, and is skipped
-        once the run is claimed again) and wait (up to ACTOR_WAIT_SECONDS, `heartbeat()` called meanwhile) for the
-        actor to announce itself."""
+        once the run is claimed again) and wait (`heartbeat()` called meanwhile) for the actor to announce itself."""
         self.store, self.run_id, self.claim = store, run_id, claim
         self.policy_url = sibling(checkpoint_file, ACTOR_POLICY_FILENAME)
         self.closed = threading.Event()
@@ -284,23 +339,32 @@ class RemoteActor:
         self.policy_version = store.open_actor_link(run_id=run_id, claim=claim, start_step=None).policy_version
         self.keepalive = threading.Thread(target=self._keep_alive, name="link-keepalive", daemon=True)
         self.keepalive.start()
+        try:
+            self._wait_for_actor(heartbeat)
+        except BaseException:
+            self.close()
+            raise
+        announced = store.actor_link(run_id=run_id).actor_spaces
+        self.action_space, self.observation_space = spaces_of(announced)
+        self.control_hz = float(announced["control_hz"])
+
+    def _wait_for_actor(self, heartbeat: Any) -> None:
+        """Until `raq actor --run ID` has announced itself and reported lately (ActorError after
+        ACTOR_WAIT_SECONDS)."""
         deadline = time.monotonic() + ACTOR_WAIT_SECONDS
         while True:
-            link = store.actor_link(run_id=run_id)
+            link = self.store.actor_link(run_id=self.run_id)
             alive = link.actor_age_seconds is not None and link.actor_age_seconds < ACTOR_LIVE_SECONDS
             if link.actor_spaces is not None and alive:
-                break
+                return
             if time.monotonic() > deadline:
-                self.close()
                 raise ActorError(
-                    f"no actor for run {run_id} within {ACTOR_WAIT_SECONDS:.0f} s: start `raq actor --run {run_id}` "
-                    "on the robot's host"
+                    f"no actor for run {self.run_id} within {ACTOR_WAIT_SECONDS:.0f} s: start `raq actor --run "
+                    f"{self.run_id}` on the robot's host"
                 )
             if heartbeat is not None:
                 heartbeat()
             time.sleep(LINK_POLL_SECONDS * 4)
-        self.action_space, self.observation_space = spaces_of(link.actor_spaces)
-        self.control_hz = float(link.actor_spaces["control_hz"])
 
     @property
     def unwrapped(self) -> "RemoteActor":
@@ -375,3 +439,66 @@ class RemoteActor:
         self.closed.set()
         with contextlib.suppress(Exception):
             self.store.close_actor_link(run_id=self.run_id, claim=self.claim)
+
+
+class ActorProcess(RemoteActor):
+    """The learner's handle on the actor beside it: a child process (`serve_child`) linked through the store as a
+    remote actor is, so that its steps are kept until a checkpoint holds them and a learner that takes the run
+    over after a crash trains on them. Once this learner's process is gone the actor holds the arm and exits."""
+
+    def __init__(self, settings: ActorSettings, *, claim: int, checkpoint_file: str, heartbeat: Any = None) -> None:
+        self.settings = settings
+        self.process: Any = None
+        super().__init__(
+            Store(settings.database_url), run_id=settings.run_id, claim=claim, checkpoint_file=checkpoint_file,
+            heartbeat=heartbeat,
+        )  # fmt: skip
+
+    def _wait_for_actor(self, heartbeat: Any) -> None:
+        """Start the actor (the link is open) and wait until it has announced itself: ActorError with its own error
+        in one line when it fails to start, or after START_SECONDS."""
+        context = multiprocessing.get_context("spawn")
+        started, child_end = context.Pipe(duplex=False)
+        self.process = context.Process(
+            target=serve_child, args=(self.settings, self.policy_url, os.getpid(), child_end),
+            name=f"actor-run-{self.run_id}", daemon=True,
+        )  # fmt: skip
+        self.process.start()
+        child_end.close()
+        deadline = time.monotonic() + START_SECONDS
+        try:
+            while not started.poll(LINK_POLL_SECONDS * 4):
+                if not self.process.is_alive():
+                    raise ActorError(f"the actor exited before it started (code {self.process.exitcode})")
+                if time.monotonic() > deadline:
+                    raise ActorError(f"the actor did not start within {START_SECONDS:.0f} s")
+                if heartbeat is not None:
+                    heartbeat()
+            try:
+                failure = started.recv()
+            except EOFError:
+                raise ActorError("the actor exited before it started") from None
+        finally:
+            started.close()
+        if failure is not None:
+            raise ActorError(f"the actor failed to start: {failure.strip().splitlines()[-1]}")
+
+    def next_message(self, timeout: float) -> ActorMessage | None:
+        """The actor's next message within `timeout` seconds, or None; ActorError for its failure or its end."""
+        message = super().next_message(timeout)
+        if message is None and not self.process.is_alive():
+            message = super().next_message(LINK_POLL_SECONDS)  # (its last messages, posted as it ended)
+            if message is None:
+                raise ActorError(f"the actor exited (code {self.process.exitcode})")
+        return message
+
+    def close(self) -> None:
+        """Close the link (the actor holds the arm and exits); wait for it (a few seconds), else end it."""
+        super().close()
+        process = self.process
+        if process is None:
+            return
+        process.join(timeout=10)
+        if process.is_alive():
+            process.terminate()
+            process.join(timeout=5)

@@ -1,14 +1,13 @@
-"""What a learner and its real-time actor say to each other, and the handle every kind of actor gives the learner.
+"""What a learner and its real-time actor say to each other.
 
 The actor's messages (`ActorMessage`) go to the learner in order: an episode's first observation, each step, each
 change of state; `Ready` once it has made its env, `Failure` with its traceback if it fails. The learner's
 (`LearnerMessage`) go the other way: where the run starts, new policy weights, keep-alives and the close. They
-cross a pipe and a queue to an actor beside the learner (learner/actor.py) or the database to one on another host
-(learner/actor_link.py), where each is a row of its `kind` and its fields in order.
+cross the database (learner/actor_link.py), where each is a row of its `kind` and its fields in order.
 """
 
 from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces
@@ -129,33 +128,3 @@ def message_of(kind: str, items: list[Any]) -> Any:
 
 class ActorError(RuntimeError):
     """The actor failed (its traceback is the message) or went away."""
-
-
-class ActorHandle(Protocol):
-    """The learner's handle on its actor, beside it (ActorProcess) or on the robot's host (RemoteActor)."""
-
-    action_space: spaces.Box
-    observation_space: spaces.Box
-
-    @property
-    def unwrapped(self) -> "ActorHandle": ...
-
-    def render(self) -> np.ndarray | None:
-        """The display frame sent with the last message (the state of the newest observation)."""
-        ...
-
-    def start(self, step: int, claim: int) -> None:
-        """The run is at `step` (after its checkpoint): the actor may begin its first episode, for `claim`."""
-        ...
-
-    def send_policy(self, modules: dict[str, dict[str, Any]]) -> None:
-        """pi's weights to the actor."""
-        ...
-
-    def next_message(self, timeout: float) -> ActorMessage | None:
-        """The actor's next message within `timeout` seconds, or None; ActorError when it failed or went away."""
-        ...
-
-    def close(self) -> None:
-        """Let go of the actor: it holds the arm. Once only."""
-        ...

@@ -1,12 +1,12 @@
 """The real-time runner: a robot (or any env given a control_hz) steps at its own rate in an actor that never
 waits for the learner; the learner takes the actor's steps as they come and runs SAC updates while none waits.
 
-The actor runs in a process beside the learner (learner/actor.py) or, with remote_actor, on the robot's host
-(`raq actor`, linked through the database and the checkpoint store: learner/actor_link.py); both give the
-`ActorHandle` of learner/actor_messages.py. There are no evaluation envs: a robot is not opened twice. A person's
-Evaluate now episodes run on the robot itself and are asked about (learner/robot_evaluation.py).
+The actor runs in a process beside the learner or, with remote_actor, on the robot's host (`raq actor`); either is
+linked through the database and the checkpoint store (learner/actor_link.py). There are no evaluation envs: a robot
+is not opened twice. A person's Evaluate now episodes run on the robot itself and are asked about
+(learner/robot_evaluation.py).
 
-A remote actor's steps stay in the store until a checkpoint holds them: a learner that takes such a run over adds
+The actor's steps stay in the store until a checkpoint holds them: a learner that takes such a run over adds
 those after its checkpoint (an earlier learner's, or posted as it died) to its replay and its step count, in order,
 before the actor starts again, so that no step the robot took is lost.
 """
@@ -20,9 +20,9 @@ from contract.config import TrainConfig
 from contract.envs import control_rate
 from contract.learner_pace import PACE_METRIC
 from contract.store import Store
-from learner.actor import ActorProcess, ActorSettings
-from learner.actor_link import RemoteActor
-from learner.actor_messages import ActorHandle, ActorMessage, EpisodeStart, StateChange, Transition
+from learner.actor import ActorSettings
+from learner.actor_link import ActorProcess, RemoteActor
+from learner.actor_messages import ActorMessage, EpisodeStart, StateChange, Transition
 from learner.robot_evaluation import RobotEvaluation
 from learner.run_control import RunControl
 from learner.trainer import EnvEpisode, EnvStep, Trainer
@@ -47,19 +47,21 @@ class RealTimeRunner:
     ) -> None:  # fmt: skip
         execution = config.execution
         self.claim = store.run_claim(run_id=control.run_id)  # (the learner's, read as it set the run up)
-        self.actor: ActorHandle
-        self.link: RemoteActor | None = None
+        self.actor: RemoteActor
         if execution.remote_actor:  # on the robot's host: the env is neither made nor imported here
-            self.actor = self.link = RemoteActor(
+            self.actor = RemoteActor(
                 store, run_id=control.run_id, claim=self.claim, checkpoint_file=str(checkpoint_file),
                 heartbeat=control.tick,
             )  # fmt: skip
         else:
-            self.actor = ActorProcess(ActorSettings(
+            settings = ActorSettings(
                 config.to_dict(), run_id=control.run_id, database_url=store.url,
                 control_hz=control_rate(config.env_id, execution.control_hz),
                 person_reset=execution.reset_every_episode,
-            ))  # fmt: skip
+            )  # fmt: skip
+            self.actor = ActorProcess(
+                settings, claim=self.claim, checkpoint_file=str(checkpoint_file), heartbeat=control.tick
+            )
         self.episode = EnvEpisode(self.actor, length=-1)  # (none until the actor's first, or the checkpoint's)
         self.trainer = trainer = Trainer(
             config, store=store, control=control, goal_set_id=goal_set_id, checkpoint_file=checkpoint_file,
@@ -80,21 +82,19 @@ class RealTimeRunner:
         self.kept_from, self.kept_through = 0, 0  # (the checkpoint's step; the id of the newest message kept since)
         self.actor_started = False
         trainer.metric_sources.extend([self._period_metrics, self._pace_metrics])
-        if self.link is not None:
-            trainer.after_checkpoint.append(self._forget_checkpointed)
+        trainer.after_checkpoint.append(self._forget_checkpointed)
 
     def start(self, *, resumed: bool) -> None:
         """The actor may begin (it resets the scene itself, a person first when needed) once `steps` has handed
-        over the remote actor's steps kept since the checkpoint."""
+        over the actor's steps kept since the checkpoint."""
         counters = self.trainer.counters
         self.kept_from, self.paced_from = counters.step, (counters.step, counters.total_updates)
-        if self.link is not None:
-            self.kept_through = self.link.resume(counters.actor_message)
+        self.kept_through = self.actor.resume(counters.actor_message)
         self._start_actor_when_kept_are_taken()
 
     def _start_actor_when_kept_are_taken(self) -> None:
         """The actor may begin at the run's step, every kept step counted."""
-        if self.actor_started or (self.link is not None and self.link.taken < self.kept_through):
+        if self.actor_started or self.actor.taken < self.kept_through:
             return
         counters = self.trainer.counters
         if counters.step > self.kept_from:
@@ -109,14 +109,13 @@ class RealTimeRunner:
     def _next_message(self, timeout: float) -> ActorMessage | None:
         """The actor's next message (the kept ones first), counted as taken."""
         message = self.actor.next_message(timeout)
-        if message is not None and self.link is not None:
-            self.trainer.counters.actor_message = self.link.taken
+        if message is not None:
+            self.trainer.counters.actor_message = self.actor.taken
         return message
 
     def _forget_checkpointed(self) -> None:
-        """A checkpoint holds the remote actor's messages up to the last taken: the store forgets them."""
-        assert self.link is not None
-        self.link.checkpointed(self.trainer.counters.actor_message)
+        """A checkpoint holds the actor's messages up to the last taken: the store forgets them."""
+        self.actor.checkpointed(self.trainer.counters.actor_message)
 
     def begin_episode(self, episode: EnvEpisode) -> None:
         """The actor begins the next episode itself; its first observation is a message `steps` takes."""

@@ -11,7 +11,8 @@ from test_actor import real_time_config
 
 from contract.settings import Settings, get_settings
 from contract.store import Store
-from learner.actor import ActorProcess, ActorSettings
+from learner.actor import ActorSettings
+from learner.actor_link import ActorProcess
 
 HZ = 10.0
 
@@ -29,11 +30,10 @@ def test_a_late_step_is_sent_late_and_never_followed_by_an_early_one(
     get_settings.cache_clear()
     config = real_time_config(env_id=LATE_ENV_ID, control_hz=HZ, reset_every_episode=False, episode_steps=12)
     run_id = create_run(store, goal_set_id, config)
-    actor = ActorProcess(ActorSettings(
-        config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=False,
-    ))  # fmt: skip
+    settings = ActorSettings(config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=False)
+    actor = ActorProcess(settings, claim=store.run_claim(run_id=run_id), checkpoint_file=str(tmp_path / "run.pt"))
     try:
-        actor.start(0, 0)
+        actor.start(0, store.run_claim(run_id=run_id))
         while sum(what == "action" for what, _ in recorded(log)) < 36:
             actor.next_message(0.1)  # (the learner's part: its steps are taken, its keep-alives sent)
     finally:

@@ -14,7 +14,8 @@ from test_actor import real_time_config
 
 from contract.settings import get_settings
 from contract.store import Store
-from learner.actor import ActorProcess, ActorSettings, ActorState
+from learner.actor import ActorSettings, ActorState
+from learner.actor_link import ActorProcess
 from learner.testing_envs import add_dot_goals
 
 HZ = 10.0
@@ -43,11 +44,10 @@ def test_the_arm_goes_home_before_the_person_is_asked_and_stop_resume_returns_to
             assert time.monotonic() < deadline, f"waited {seconds:g} s for {what}"
             actor.next_message(0.02)  # (the learner's part: the actor's messages are taken)
 
-    actor = ActorProcess(ActorSettings(
-        config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=True,
-    ))  # fmt: skip
+    settings = ActorSettings(config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=True)
+    actor = ActorProcess(settings, claim=store.run_claim(run_id=run_id), checkpoint_file=str(tmp_path / "run.pt"))
     try:
-        actor.start(0, 0)
+        actor.start(0, store.run_claim(run_id=run_id))
         # the arm to its start pose first, then the card asks the person
         wait_for(lambda: store.robot_status(run_id=run_id).reset_needed, "the reset card")
         assert state() == ActorState.WAITING_FOR_RESET

@@ -16,19 +16,21 @@ from contract.config import TrainConfig
 from contract.settings import Settings, get_settings
 from contract.store import Store
 from contract.store.models import Run
-from learner.actor import ActorProcess, ActorSettings, ActorState
+from learner.actor import ActorSettings, ActorState
+from learner.actor_link import ActorProcess
+from learner.actor_messages import ActorError
 
 HZ = 10.0
 
 
 def start_actor(
-    store: Store, run_id: int, log: Path, monkeypatch: pytest.MonkeyPatch, config: TrainConfig
+    store: Store, run_id: int, log: Path, monkeypatch: pytest.MonkeyPatch, config: TrainConfig, claim: int
 ) -> ActorProcess:
-    """An actor process of the run on the recording arm, writing to `log` (the process inherits it)."""
+    """An actor process of the run on the recording arm for a learner holding `claim`, writing to `log` (the
+    process inherits it)."""
     monkeypatch.setenv(LOG_VARIABLE, str(log))
-    return ActorProcess(ActorSettings(
-        config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=False,
-    ))  # fmt: skip
+    settings = ActorSettings(config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=False)
+    return ActorProcess(settings, claim=claim, checkpoint_file=str(log.with_suffix(".pt")))
 
 
 def actions(log: Path) -> list[float]:
@@ -42,7 +44,10 @@ def pump(actors: list[ActorProcess], until: Callable[[], bool], timeout: float =
         assert time.monotonic() < deadline, "timed out"
         for actor in actors:
             if actor.process.is_alive():
-                actor.next_message(0.02)
+                try:
+                    actor.next_message(0.02)
+                except ActorError:  # (it ended meanwhile: what its learner would be told)
+                    assert not actor.process.is_alive()
 
 
 def take_over(store: Store, run_id: int) -> int:
@@ -73,14 +78,14 @@ def test_after_a_takeover_the_old_actor_sends_nothing_and_the_new_one_drives_alo
     run_id = create_run(store, goal_set_id, config)
     first_claim = store.claim_next_run(worker="first-learner").claim
     old_log, new_log = tmp_path / "old.log", tmp_path / "new.log"
-    old = start_actor(store, run_id, old_log, monkeypatch, config)
+    old = start_actor(store, run_id, old_log, monkeypatch, config, first_claim)
     new = None
     try:
         old.start(0, first_claim)
         pump([old], lambda: len(actions(old_log)) >= 10)
         taken_at = time.monotonic()
         second_claim = take_over(store, run_id)
-        new = start_actor(store, run_id, new_log, monkeypatch, config)
+        new = start_actor(store, run_id, new_log, monkeypatch, config, second_claim)
         new.start(0, second_claim)
         pump([old, new], lambda: len(actions(new_log)) >= 10)
         assert not old.process.is_alive()  # it let go and ended
@@ -104,8 +109,8 @@ def test_a_second_run_of_the_robot_waits_while_the_first_drives_it(
     config = real_time_config(env_id=ENV_ID, control_hz=HZ, reset_every_episode=False, episode_steps=20)
     first_run, second_run = create_run(store, goal_set_id, config), create_run(store, goal_set_id, config)
     first_log, second_log = tmp_path / "first.log", tmp_path / "second.log"
-    first = start_actor(store, first_run, first_log, monkeypatch, config)
-    second = start_actor(store, second_run, second_log, monkeypatch, config)
+    first = start_actor(store, first_run, first_log, monkeypatch, config, store.run_claim(run_id=first_run))
+    second = start_actor(store, second_run, second_log, monkeypatch, config, store.run_claim(run_id=second_run))
     try:
         first.start(0, store.run_claim(run_id=first_run))
         pump([first], lambda: len(actions(first_log)) >= 5)

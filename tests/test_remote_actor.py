@@ -213,13 +213,14 @@ def reset_and_answer(store: Store, run_id: int, done: threading.Event) -> None:
 
 
 def end_learner_and_actor(
-    learner: subprocess.Popen, actor: subprocess.Popen, learner_log: BinaryIO, output: str
+    learner: subprocess.Popen, actor: subprocess.Popen | None, learner_log: BinaryIO, output: str
 ) -> str:
     """Kill what still runs; print both outputs (the actor's, read here unless given, and the learner's log)."""
     for process in (learner, actor):
-        if process.poll() is None:
+        if process is not None and process.poll() is None:
             process.kill()
-    output = output or actor.communicate(timeout=30)[0].decode()
+    if actor is not None:
+        output = output or actor.communicate(timeout=30)[0].decode()
     learner.wait(timeout=30)
     learner_log.close()
     print("actor:", output, "learner:", Path(learner_log.name).read_text(), sep="\n")

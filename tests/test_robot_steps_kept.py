@@ -1,6 +1,6 @@
-"""No robot step is lost when a learner dies: a remote actor's steps stay in the store until a checkpoint holds them,
-and the learner that takes the run over adds those taken after its checkpoint to its replay, in order and once
-each, before the actor starts again."""
+"""No robot step is lost when a learner dies: an actor's steps (beside its learner or on the robot's host) stay in
+the store until a checkpoint holds them, and the learner that takes the run over adds those taken after its
+checkpoint to its replay, in order and once each, before the actor starts again."""
 
 import functools
 import random
@@ -11,10 +11,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from action_values_arm import ACTIONS_VARIABLE, actions_sent
 from action_values_arm import ENV_ID as ARM_ID
 from conftest import create_run, learn_once_beside
 from recording_arm import LOG_VARIABLE, recorded
+from recording_arm import recorded_by as calls_of
 from test_actor import real_time_config
 from test_remote_actor import (  # noqa: F401 - link_store: a fixture
     end_learner_and_actor,
@@ -24,7 +26,7 @@ from test_remote_actor import (  # noqa: F401 - link_store: a fixture
     wait_until,
 )
 
-from contract.settings import Settings
+from contract.settings import Settings, get_settings
 from contract.store import RunStatus, Store
 from learner.checkpoint import checkpoint_path, load_checkpoint
 
@@ -66,16 +68,25 @@ def test_the_actors_messages_are_kept_until_a_checkpoint_holds_them(link_store: 
     assert store.newest_actor_message(run_id=third) == 0
 
 
+def alive(pid: int) -> bool:
+    """The process runs (a zombie, ended but not yet reaped by its parent, does not)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.parametrize("remote_actor", [False, True], ids=["actor-beside-its-learner", "remote-actor"])
 def test_a_learner_that_takes_a_run_over_trains_on_every_step_the_robot_took(
-    dot_reach: tuple[Settings, Store, int], tmp_path: Path
+    dot_reach: tuple[Settings, Store, int], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, remote_actor: bool
 ) -> None:
-    """A remote actor's learner is SIGKILLed between two checkpoints; the robot went on until its watchdog held it.
-    The learner that takes the run over has every action the arm sent before it in its replay, in order, none
-    twice."""
+    """The learner is SIGKILLed between two checkpoints; the robot went on until its actor held it (the actor beside
+    it then exits). The learner that takes the run over has every action the arm sent before it in its replay, in
+    order, none twice; no process that drove the arm is left."""
     settings, store, goal_set_id = dot_reach
     log, actions_log = tmp_path / "arm.log", tmp_path / "actions.log"
     config = real_time_config(
-        env_id=ARM_ID, remote_actor=True, reset_every_episode=False, total_steps=TOTAL_STEPS,
+        env_id=ARM_ID, remote_actor=remote_actor, reset_every_episode=False, total_steps=TOTAL_STEPS,
         checkpoint_every=CHECKPOINT_EVERY, watchdog_seconds=WATCHDOG_SECONDS,
     )  # fmt: skip
     run_id = create_run(store, goal_set_id, config)
@@ -83,14 +94,18 @@ def test_a_learner_that_takes_a_run_over_trains_on_every_step_the_robot_took(
     kill_after = random.uniform(5, 30) / config.control_hz
     print(f"the first learner is killed {kill_after:.3f} s after its first checkpoint")
     env = host_env(settings)
-    env.update({
-        LOG_VARIABLE: str(log), ACTIONS_VARIABLE: str(actions_log), "PYTHONPATH": str(ROOT / "tests"),
-        "RAQ_ENV_MODULES": "learner.testing_envs,recording_arm,action_values_arm",
-    })  # fmt: skip
-    actor = subprocess.Popen(
-        [sys.executable, "-m", "cli", "actor", "--run", str(run_id)], cwd=ROOT, env=env, stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-    )  # fmt: skip
+    arm = {LOG_VARIABLE: str(log), ACTIONS_VARIABLE: str(actions_log)}
+    modules = {"RAQ_ENV_MODULES": "learner.testing_envs,recording_arm,action_values_arm"}
+    env.update({**arm, **modules, "PYTHONPATH": str(ROOT / "tests")})
+    for name, value in {**arm, **modules}.items():  # (the second learner's actor, started from this process)
+        monkeypatch.setenv(name, value)
+    get_settings.cache_clear()
+    actor = None
+    if remote_actor:
+        actor = subprocess.Popen(
+            [sys.executable, "-m", "cli", "actor", "--run", str(run_id)], cwd=ROOT, env=env,
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        )  # fmt: skip
     learner_log = (tmp_path / "learner.log").open("wb")
     learner = subprocess.Popen(
         [sys.executable, "-m", "learner.worker", "--once", "--name", "doomed"], cwd=ROOT, env=env,
@@ -108,14 +123,19 @@ def test_a_learner_that_takes_a_run_over_trains_on_every_step_the_robot_took(
         assert checkpoint is not None and checkpoint["step"] == CHECKPOINT_EVERY
         held = lambda: [at for what, at in recorded(log) if what == "hold" and at > killed]  # noqa: E731
         wait_until(lambda: bool(held()), 10, "the arm held after the learner's SIGKILL", actor)
+        first_drivers = {pid for _, _, pid in calls_of(log)}
         time.sleep(max(0.0, killed + 1.5 * STALE_SECONDS - time.monotonic()))  # (its heartbeat stale: no race)
         second_started = time.monotonic()
         quick = settings.model_copy(update={"stale_heartbeat_seconds": STALE_SECONDS})
         assert learn_once_beside(quick, functools.partial(reset_and_answer, store, run_id)) == 0
         assert store.get_run(run_id=run_id).status == RunStatus.FINISHED
-        output = actor.communicate(timeout=30)[0].decode()
+        if actor is not None:
+            output = actor.communicate(timeout=30)[0].decode()
+        wait_until(lambda: not any(alive(pid) for pid in first_drivers), 10, "the first learner's actor to exit")
+        assert not any(alive(pid) for _, _, pid in calls_of(log)), "a process that drove the arm is left"
     finally:
         output = end_learner_and_actor(learner, actor, learner_log, output)
+        get_settings.cache_clear()
     final = load_checkpoint(checkpoint_path(settings.checkpoint_dir, run_id))
     assert final is not None and final["step"] == TOTAL_STEPS
     replay = final["replay"]["actions"].numpy().astype(np.float64)
