@@ -15,11 +15,10 @@ presses Ready, through, in turn:
 
 It prints, from the log: the most processes that sent actions within any one control period (one driver: 1), the
 shortest interval between two actions, the robot steps lost at the takeovers (the actions the arm took before the
-new learner's actor moved it, less the step the run resumed at and the steps lost before: steps no replay got;
-an actor beside its learner hands its steps over through a pipe, so its learner's crash loses those since the last
-checkpoint, while an actor linked through the database keeps them in the store), the processes of a
-killed learner still alive STRAY_AFTER_SECONDS later, and the arm moves made by others: a move by a process that
-never drove the arm (a server), or an action by a driver after a later driver's first. Writes <out>/figures.json.
+new learner's actor moved it, less the step the run resumed at and the steps lost before: steps no replay got), the
+processes of a killed learner (its actor beside it included) still alive STRAY_AFTER_SECONDS later, and the arm
+moves made by others: a move by a process that never drove the arm (a server), or an action by a driver after a
+later driver's first. Writes <out>/figures.json.
 """
 
 import argparse

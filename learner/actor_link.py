@@ -147,6 +147,7 @@ class StoreLink:
         self.started = False
         self.learner_seen_at: Any = None
         self.policy_version = 0
+        self.claim = -1  # (the run's claim when the learner started the actor)
         self.threads = [
             threading.Thread(target=self._poll_link, name="link-poll", daemon=True),
             threading.Thread(target=self._post, name="link-post", daemon=True),
@@ -181,16 +182,25 @@ class StoreLink:
                     self.learner_seen_at = link.learner_seen_at
                     self.inbox.put(KeepAlive())
                 if link.start_step is not None and not self.started:
-                    self.started = True
-                    self.inbox.put(Start(link.start_step, self.store.run_claim(run_id=self.run_id)))
-                if link.policy_version > self.policy_version:
-                    state = load_checkpoint(self.policy_url)
-                    if state is not None:
-                        self.policy_version = max(link.policy_version, int(state["version"]))
-                        self.inbox.put(PolicyWeights(state["modules"]))
+                    self.started, self.claim = True, self.store.run_claim(run_id=self.run_id)
+                    self.inbox.put(Start(link.start_step, self.claim))
+                if self.started and link.policy_version > self.policy_version:
+                    self._load_policy(link.policy_version)
                 if link.learner_closed and self.started:
                     self.inbox.put(Close())
                     return
+
+    def _load_policy(self, published: int) -> None:
+        """The policy the store says is newest (version `published`), from the checkpoint store: taken when its
+        learner holds this actor's claim (a displaced learner may have written the file since)."""
+        state = load_checkpoint(self.policy_url)
+        if state is None:
+            return
+        if int(state.get("claim", -1)) != self.claim:
+            self.policy_version = published  # (the file is looked at again at the next version)
+            return
+        self.policy_version = max(published, int(state["version"]))
+        self.inbox.put(PolicyWeights(state["modules"]))
 
     def _post(self) -> None:
         """Post what waits in the outbox, in order, every POST_SECONDS (kept while the store is away); the actor's
@@ -392,7 +402,7 @@ class RemoteActor:
 
     def send_policy(self, modules: dict[str, dict[str, Any]]) -> None:
         """pi's weights to the checkpoint store, then their version to the actor."""
-        save_checkpoint(self.policy_url, {"version": self.policy_version + 1, "modules": modules})
+        save_checkpoint(self.policy_url, {"version": self.policy_version + 1, "claim": self.claim, "modules": modules})
         published = self.store.publish_actor_policy(run_id=self.run_id, claim=self.claim)
         if published is not None:  # (None: the run was claimed again, and this learner leaves it at its next step)
             self.policy_version = published

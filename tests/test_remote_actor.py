@@ -14,6 +14,7 @@ from typing import BinaryIO
 
 import pytest
 import sqlalchemy as sa
+import torch
 from conftest import create_run, learn_once_beside
 from recording_arm import ENV_ID, LOG_VARIABLE, recorded
 from test_actor import real_time_config
@@ -23,8 +24,9 @@ from contract.checkpoint_location import ACTOR_POLICY_FILENAME
 from contract.settings import Settings
 from contract.store import NotFound, RunStatus, Store
 from learner.actor import ActorState
-from learner.actor_link import decode_message, encode_message
-from learner.actor_messages import Transition
+from learner.actor_link import StoreLink, decode_message, encode_message
+from learner.actor_messages import PolicyWeights, Start, Transition
+from learner.checkpoint import save_checkpoint
 
 ROOT = Path(__file__).resolve().parent.parent
 LINK_SLACK_SECONDS = 0.5
@@ -104,10 +106,9 @@ def test_the_link_carries_the_actors_messages_in_order_and_the_learners_side(lin
         store.actor_link(run_id=run_id + 1)
 
 
-def test_a_learner_whose_run_was_claimed_again_writes_nothing_on_the_link(link_store: Store) -> None:
-    """The displaced learner (it stalled past the staleness limit, another claimed its run) neither closes, stamps
-    nor publishes on the new learner's link, nor forgets steps its own checkpoint lacks."""
-    store = link_store
+def taken_over(store: Store) -> tuple[int, int, int]:
+    """A run claimed by a first learner, which opened its link and got three steps, then claimed by a second once
+    the first's heartbeat is old: (the run, the first claim, the second)."""
     run_id = store.create_run(
         env_id="robot.standin:PusherStandIn-v0", algorithm="vice_raq", config={}, priority=100
     ).id  # (claimed first, before any other run of the module's database)
@@ -124,6 +125,14 @@ def test_a_learner_whose_run_was_claimed_again_writes_nothing_on_the_link(link_s
     new_claim = store.run_claim(run_id=run_id)
     assert new_claim == old_claim + 1
     store.open_actor_link(run_id=run_id, claim=new_claim, start_step=None)
+    return run_id, old_claim, new_claim
+
+
+def test_a_learner_whose_run_was_claimed_again_writes_nothing_on_the_link(link_store: Store) -> None:
+    """The displaced learner (it stalled past the staleness limit, another claimed its run) neither closes, stamps
+    nor publishes on the new learner's link, nor forgets steps its own checkpoint lacks."""
+    store = link_store
+    run_id, old_claim, new_claim = taken_over(store)
     store.start_actor_link(run_id=run_id, claim=new_claim, start_step=40)
     version = store.publish_actor_policy(run_id=run_id, claim=new_claim)
 
@@ -137,6 +146,37 @@ def test_a_learner_whose_run_was_claimed_again_writes_nothing_on_the_link(link_s
     assert not link.learner_closed and link.start_step == 40 and link.policy_version == version
     assert len(store.take_actor_messages(run_id=run_id, after_id=0)) == 3
     assert store.learner_keepalive(run_id=run_id, claim=new_claim) is True
+
+
+def test_an_actor_loads_no_policy_a_displaced_learner_wrote(link_store: Store, tmp_path: Path) -> None:
+    """The checkpoint store's policy file is written over by the displaced learner after the new one published its
+    version: the actor skips it (it names the other claim) and loads the new learner's next one."""
+    store = link_store
+    run_id, old_claim, new_claim = taken_over(store)
+    store.start_actor_link(run_id=run_id, claim=new_claim, start_step=40)
+    policy_url = str(tmp_path / ACTOR_POLICY_FILENAME)
+    link = StoreLink(store, run_id=run_id, policy_url=policy_url, hz=5.0)
+    received: list[object] = []
+
+    def receive(seconds: float) -> list[object]:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            while link.poll():
+                received.append(link.recv())
+            time.sleep(0.02)
+        return [message for message in received if isinstance(message, PolicyWeights)]
+
+    try:
+        assert receive(1.0) == [] and [m.claim for m in received if isinstance(m, Start)] == [new_claim]
+        save_checkpoint(policy_url, {"version": 1, "claim": old_claim, "modules": {"actor": {"w": torch.zeros(1)}}})
+        assert store.publish_actor_policy(run_id=run_id, claim=new_claim) == 1
+        assert receive(0.5) == []  # (the displaced learner's weights, under the new learner's version)
+        save_checkpoint(policy_url, {"version": 2, "claim": new_claim, "modules": {"actor": {"w": torch.ones(1)}}})
+        assert store.publish_actor_policy(run_id=run_id, claim=new_claim) == 2
+        loaded = receive(1.0)
+        assert len(loaded) == 1 and float(loaded[0].modules["actor"]["w"]) == 1.0
+    finally:
+        link.close()
 
 
 def test_a_remote_actor_drives_the_robot_for_each_learner_and_holds_it_when_one_is_killed(
