@@ -376,22 +376,25 @@ def main() -> int:
     if args.report:
         rows = [keep_figures(args.csv, args.out / f"seed{seed}" / "figures.json") for seed in seeds]
         seeds = []
-    while seeds or running:
-        while seeds and len(running) < args.parallel:
-            seed = seeds.pop(0)
-            (args.out / f"seed{seed}").mkdir(parents=True, exist_ok=True)
-            log = (args.out / f"seed{seed}" / "bench.log").open("w")
-            running[seed] = subprocess.Popen([sys.executable, __file__, *sys.argv[1:], "--seed", str(seed)],
-                                             stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
-            print(f"seed {seed} started: {args.out / f'seed{seed}'}", flush=True)
-        for seed, process in list(running.items()):
-            if process.poll() is not None:
-                del running[seed]
-                figures_file = args.out / f"seed{seed}" / "figures.json"
-                if process.returncode == 0 and figures_file.exists():
-                    rows.append(keep_figures(args.csv, figures_file))
-                print(f"seed {seed} ended ({process.returncode})", flush=True)
-        time.sleep(2.0)
+    try:  # (interrupted: each running seed is stopped, its own processes with it)
+        while seeds or running:
+            while seeds and len(running) < args.parallel:
+                seed = seeds.pop(0)
+                (args.out / f"seed{seed}").mkdir(parents=True, exist_ok=True)
+                log = (args.out / f"seed{seed}" / "bench.log").open("w")
+                running[seed] = subprocess.Popen([sys.executable, __file__, *sys.argv[1:], "--seed", str(seed)],
+                                                 stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+                print(f"seed {seed} started: {args.out / f'seed{seed}'}", flush=True)
+            for seed, process in list(running.items()):
+                if process.poll() is not None:
+                    del running[seed]
+                    figures_file = args.out / f"seed{seed}" / "figures.json"
+                    if process.returncode == 0 and figures_file.exists():
+                        rows.append(keep_figures(args.csv, figures_file))
+                    print(f"seed {seed} ended ({process.returncode})", flush=True)
+            time.sleep(2.0)
+    finally:
+        stop_all(list(running.values()))
     print("| seed | preset | steps to 90% | queries | updates per step | person minutes |")
     print("| --- | --- | --- | --- | --- | --- |")
     for row in rows:

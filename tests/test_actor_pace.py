@@ -47,7 +47,9 @@ def test_a_late_step_is_sent_late_and_never_followed_by_an_early_one(
     assert len(late) >= 36 // LATE_EVERY - 1, intervals  # the arm was late, and often
     assert intervals.min() >= 0.9 * period, intervals  # and no step came early after it
     assert abs(np.median(intervals) - period) < 0.1 * period, intervals  # on time, the rate is kept
-    assert np.all(intervals[late[late + 1 < len(intervals)] + 1] >= period - 0.002), intervals  # a full period after
+    # a full period after (catching up would send it at the tick, 0.3 of a period early); the log's times carry a
+    # few ms of the actor's other threads, which encode and post the late step at that moment
+    assert np.all(intervals[late[late + 1 < len(intervals)] + 1] >= 0.95 * period), intervals
     told: list[tuple[float, float | None]] = []  # (what limit_action was told, the real time since the last action)
     previous: float | None = None
     for what, value in events:
