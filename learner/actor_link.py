@@ -456,13 +456,15 @@ class ActorProcess(RemoteActor):
     remote actor is, so that its steps are kept until a checkpoint holds them and a learner that takes the run
     over after a crash trains on them. Once this learner's process is gone the actor holds the arm and exits."""
 
-    def __init__(self, settings: ActorSettings, *, claim: int, checkpoint_file: str, heartbeat: Any = None) -> None:
+    def __init__(
+        self, store: Store, settings: ActorSettings, *, claim: int, checkpoint_file: str, heartbeat: Any = None
+    ) -> None:
+        """`store`: the learner's own (the actor opens `settings.database_url` itself)."""
         self.settings = settings
         self.process: Any = None
         super().__init__(
-            Store(settings.database_url), run_id=settings.run_id, claim=claim, checkpoint_file=checkpoint_file,
-            heartbeat=heartbeat,
-        )  # fmt: skip
+            store, run_id=settings.run_id, claim=claim, checkpoint_file=checkpoint_file, heartbeat=heartbeat
+        )
 
     def _wait_for_actor(self, heartbeat: Any) -> None:
         """Start the actor (the link is open) and wait until it has announced itself: ActorError with its own error

@@ -60,7 +60,7 @@ class RealTimeRunner:
                 person_reset=execution.reset_every_episode,
             )  # fmt: skip
             self.actor = ActorProcess(
-                settings, claim=self.claim, checkpoint_file=str(checkpoint_file), heartbeat=control.tick
+                store, settings, claim=self.claim, checkpoint_file=str(checkpoint_file), heartbeat=control.tick
             )
         self.episode = EnvEpisode(self.actor, length=-1)  # (none until the actor's first, or the checkpoint's)
         self.trainer = trainer = Trainer(

@@ -31,9 +31,10 @@ def test_a_late_step_is_sent_late_and_never_followed_by_an_early_one(
     config = real_time_config(env_id=LATE_ENV_ID, control_hz=HZ, reset_every_episode=False, episode_steps=12)
     run_id = create_run(store, goal_set_id, config)
     settings = ActorSettings(config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=False)
-    actor = ActorProcess(settings, claim=store.run_claim(run_id=run_id), checkpoint_file=str(tmp_path / "run.pt"))
+    claim = store.run_claim(run_id=run_id)
+    actor = ActorProcess(store, settings, claim=claim, checkpoint_file=str(tmp_path / "run.pt"))
     try:
-        actor.start(0, store.run_claim(run_id=run_id))
+        actor.start(0, claim)
         while sum(what == "action" for what, _ in recorded(log)) < 36:
             actor.next_message(0.1)  # (the learner's part: its steps are taken, its keep-alives sent)
     finally:

@@ -45,9 +45,10 @@ def test_the_arm_goes_home_before_the_person_is_asked_and_stop_resume_returns_to
             actor.next_message(0.02)  # (the learner's part: the actor's messages are taken)
 
     settings = ActorSettings(config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=True)
-    actor = ActorProcess(settings, claim=store.run_claim(run_id=run_id), checkpoint_file=str(tmp_path / "run.pt"))
+    claim = store.run_claim(run_id=run_id)
+    actor = ActorProcess(store, settings, claim=claim, checkpoint_file=str(tmp_path / "run.pt"))
     try:
-        actor.start(0, store.run_claim(run_id=run_id))
+        actor.start(0, claim)
         # the arm to its start pose first, then the card asks the person
         wait_for(lambda: store.robot_status(run_id=run_id).reset_needed, "the reset card")
         assert state() == ActorState.WAITING_FOR_RESET

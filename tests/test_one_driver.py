@@ -30,7 +30,7 @@ def start_actor(
     process inherits it)."""
     monkeypatch.setenv(LOG_VARIABLE, str(log))
     settings = ActorSettings(config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=False)
-    return ActorProcess(settings, claim=claim, checkpoint_file=str(log.with_suffix(".pt")))
+    return ActorProcess(store, settings, claim=claim, checkpoint_file=str(log.with_suffix(".pt")))
 
 
 def actions(log: Path) -> list[float]:
