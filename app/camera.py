@@ -5,35 +5,24 @@ Which envs have a camera: the allowed envs (the project's stand-in robot and RAQ
 learner can make) whose class, read from gymnasium's registry entry point without making the env, is a
 `robot.base.RobotEnv` that implements `read_camera`.
 
-One open env per env id, made on first use and shared by every request. Each is owned by its own thread: a
-rendering context (MuJoCo's EGL) or a camera handle belongs to the thread that opened it, and the frames are read
-with `read_camera()` alone: the server never calls `reset`, `send_action` or `hold_safe`, and lets go of the env
-(`RobotEnv.let_go`) before it closes it, so that closing holds nothing either. A camera is read at most every
-FRAME_INTERVAL_S (requests in between get the last frame), closed after IDLE_CLOSE_S without a request, and all
-are closed by `close_cameras()` (registered with `atexit`; the app's lifespan may call it too).
-
-A camera opens in one process at a time (most USB cameras): once a learner claims a run of the env
-(Store.claimed_run_of), this server closes its env at the next request, before that run's actor opens the
-camera, and serves the frames the actor publishes (Store.robot_runs) until the run ends.
+The server never opens a camera or makes a robot's env: the robot's own process (`raq robot ENV`,
+learner/robot_process.py) owns camera and arm and publishes frames to the store, often while a page watches (this
+server says so, Store.watch_robot); while a run's actor drives the robot, its frames are the run's
+(Store.robot_runs). So a camera that opens in one process at a time (most USB cameras) serves the live view and a
+run at once, and no page can move or hold an arm.
 """
 
-import atexit
 import io
-import queue
 import threading
 import time
-from collections.abc import Callable, Iterable
-from concurrent.futures import Future
-from concurrent.futures import TimeoutError as FutureTimeout
-from dataclasses import dataclass, field
+from collections.abc import Iterable
+from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from PIL import Image
 
-from contract.envs import SIM_ENV_IDS, encode_png, env_class, make_env, module_env_ids
+from contract.envs import SIM_ENV_IDS, env_class, module_env_ids
 from contract.images import VIEWPOINT_SIMILARITY, model_view, viewpoint_similarity
 from contract.store import NotFound, Store
 from robot.base import RobotEnv
@@ -41,11 +30,9 @@ from robot.base import RobotEnv
 PROJECT_ROBOT_MODULES = ("robot.standin",)
 """The project's own robots offered everywhere (robot.template is a file to copy, not a robot)."""
 FRAME_INTERVAL_S = 0.2
-"""A camera is read at most this often; requests in between get the last frame (keeps the MuJoCo stand-in cheap)."""
-IDLE_CLOSE_S = 20.0
-"""An env nobody asked for a frame for this long is closed, freeing the camera for a run's actor."""
-READ_TIMEOUT_S = 15.0
-"""The longest a request waits for the env to open and give a frame."""
+"""The store is asked for a camera's frame at most this often; requests in between get the last answer."""
+WATCH_EVERY_S = 1.0
+"""How often this server tells a robot's process that a page watches its camera."""
 
 ASPECT_TOLERANCE = 0.10
 """The photo's width/height may differ from the camera frame's by this fraction before it is a warning."""
@@ -61,7 +48,7 @@ CHANNELS = ("red", "green", "blue")
 
 
 class CameraUnavailable(RuntimeError):
-    """The env could not be made or gave no frame, or a run's actor holds the camera and has published none."""
+    """No process publishes the robot's frames, or the one that has the camera has published none yet."""
 
 
 class CameraFrame:
@@ -114,172 +101,66 @@ def camera_env_ids(env_modules: Iterable[str]) -> list[str]:
     return list(_camera_env_ids(tuple(env_modules)))
 
 
-# ---------------------------------------------------------------- the open cameras
-_CLOSE = object()
-
-
-@dataclass(eq=False)
-class _Camera:
-    """One open env of an env id and the thread that owns it."""
-
-    env_id: str
-    jobs: "queue.Queue[Any]" = field(default_factory=queue.Queue)
-    last: CameraFrame | None = None
-    pending: "Future[CameraFrame] | None" = None
-    thread: threading.Thread | None = None
-
-
+# ---------------------------------------------------------------- the frames the robots publish
 class CameraSource:
     """The robots' cameras as this server sees them (see the module's docstring); safe to share between threads."""
 
-    def __init__(self, make: Callable[[str], gym.Env] | None = None, *, idle_close_s: float = IDLE_CLOSE_S) -> None:
-        self._make = make or (lambda env_id: make_env(env_id, image_size=84, display_size=256))
-        self._idle_close_s = idle_close_s
+    def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._cameras: dict[str, _Camera] = {}
-        self._actor_checked: dict[tuple[int, str], tuple[float, CameraFrame | str | None]] = {}
+        self._checked: dict[tuple[int, str], tuple[float, CameraFrame | str]] = {}
+        self._watched: dict[tuple[int, str], float] = {}
 
-    def open_env_ids(self) -> list[str]:
-        """The env ids whose env this server holds open now."""
-        with self._lock:
-            return sorted(self._cameras)
-
-    def frame(self, env_id: str, store: Store | None = None) -> CameraFrame:
-        """The camera's current frame (at most FRAME_INTERVAL_S old): a live actor's when a run's actor drives
-        this env, else read here. Raises CameraUnavailable."""
-        if store is not None:
-            published = self._actor_frame(env_id, store)
-            if published is not None:  # the actor holds the camera
-                self.release(env_id)
-                if isinstance(published, str):
-                    raise CameraUnavailable(published)
-                return published
-        with self._lock:
-            camera = self._cameras.get(env_id)
-            if camera is None:
-                camera = self._cameras[env_id] = _Camera(env_id)
-                camera.thread = threading.Thread(
-                    target=self._serve, args=(camera,), name=f"camera {env_id}", daemon=True
-                )
-                camera.thread.start()
-            if camera.last is not None and time.monotonic() - camera.last.taken_at < FRAME_INTERVAL_S:
-                return camera.last
-            if camera.pending is None:  # concurrent requests share one read
-                camera.pending = Future()
-                camera.jobs.put(camera.pending)
-            pending = camera.pending
-        try:
-            return pending.result(timeout=READ_TIMEOUT_S)
-        except FutureTimeout:
-            raise CameraUnavailable(f"{env_id}: the camera gave no frame in {READ_TIMEOUT_S:g} s") from None
-
-    def release(self, env_id: str) -> None:
-        """Close this server's env of env_id, if open (a run's actor needs the camera)."""
-        with self._lock:
-            camera = self._cameras.pop(env_id, None)
-        if camera is not None:
-            camera.jobs.put(_CLOSE)
-
-    def close(self, timeout_s: float = 10.0) -> None:
-        """Close every open env (each on its own thread); a later frame() opens the camera again."""
-        with self._lock:
-            cameras = list(self._cameras.values())
-            self._cameras.clear()
-            self._actor_checked.clear()
-        for camera in cameras:
-            camera.jobs.put(_CLOSE)
-        deadline = time.monotonic() + timeout_s
-        for camera in cameras:
-            if camera.thread is not None:
-                camera.thread.join(max(0.0, deadline - time.monotonic()))
-
-    def _serve(self, camera: _Camera) -> None:
-        """The camera's thread: opens the env on the first read, reads frames, closes the env when told, when
-        idle, or when it cannot be opened."""
-        env: gym.Env | None = None
-        try:
-            while True:
-                try:
-                    job = camera.jobs.get(timeout=self._idle_close_s)
-                except queue.Empty:
-                    with self._lock:  # frame() submits under this lock: no read can be left waiting
-                        if not camera.jobs.empty():
-                            continue
-                        if self._cameras.get(camera.env_id) is camera:
-                            del self._cameras[camera.env_id]
-                    return
-                if job is _CLOSE:
-                    return
-                try:
-                    if env is None:
-                        env = self._make(camera.env_id)
-                    pixels = np.ascontiguousarray(env.unwrapped.read_camera(), dtype=np.uint8)
-                    if pixels.ndim != 3 or pixels.shape[2] != 3:
-                        raise ValueError(f"read_camera gave shape {pixels.shape}; expected (height, width, 3)")
-                    result = CameraFrame(env_id=camera.env_id, png=encode_png(pixels), source="camera", pixels=pixels)
-                except Exception as error:  # noqa: BLE001 - the robot's own failure is the answer, not a 500
-                    problem = CameraUnavailable(f"{camera.env_id}: {type(error).__name__}: {error}".splitlines()[0])
-                    with self._lock:
-                        camera.pending = None
-                        if env is None and self._cameras.get(camera.env_id) is camera:
-                            del self._cameras[camera.env_id]  # the next request tries to open it afresh
-                    job.set_exception(problem)
-                    if env is None:
-                        return
-                    continue
-                with self._lock:
-                    camera.last, camera.pending = result, None
-                job.set_result(result)
-        finally:
-            if env is not None:
-                let_go = getattr(env.unwrapped, "let_go", None)
-                if let_go is not None:  # (this process never drove the arm: closing must not hold it either)
-                    let_go()
-                env.close()
-
-    def _actor_frame(self, env_id: str, store: Store) -> CameraFrame | str | None:
-        """_published_frame, looked up at most every FRAME_INTERVAL_S per store and env id."""
+    def frame(self, env_id: str, store: Store) -> CameraFrame:
+        """The camera's newest frame as its robot's process (or a run's actor) published it, looked up at most
+        every FRAME_INTERVAL_S per store and env id. Raises CameraUnavailable with the reason when there is none."""
         now, key = time.monotonic(), (id(store), env_id)
         with self._lock:
-            checked = self._actor_checked.get(key)
-        if checked is not None and now - checked[0] < FRAME_INTERVAL_S:
-            return checked[1]
-        answer = _published_frame(env_id, store)
-        with self._lock:
-            self._actor_checked[key] = (now, answer)
-        return answer
+            checked = self._checked.get(key)
+        if checked is None or now - checked[0] >= FRAME_INTERVAL_S:
+            checked = (now, self._published_frame(env_id, store, key))
+            with self._lock:
+                self._checked[key] = checked
+        if isinstance(checked[1], str):
+            raise CameraUnavailable(checked[1])
+        return checked[1]
 
-
-def _published_frame(env_id: str, store: Store) -> CameraFrame | str | None:
-    """The newest frame of env_id that a run's actor published, while the store lists that actor as driving its
-    robot (Store.robot_runs); a reason while a run of env_id is claimed and its actor has published none yet; None
-    when no run drives env_id (this server may open the camera)."""
-    for robot in store.robot_runs():
-        try:
-            if store.get_run(run_id=robot.run_id).env_id != env_id:
+    def _published_frame(self, env_id: str, store: Store, key: tuple[int, str]) -> CameraFrame | str:
+        """The newest frame of env_id: its driving actor's while a run's actor drives the robot, else its robot
+        process's (marked watched, so that it publishes often); the reason when there is none."""
+        for robot in store.robot_runs():
+            try:
+                if store.get_run(run_id=robot.run_id).env_id != env_id:
+                    continue
+                published = store.camera_frame(run_id=robot.run_id)
+            except NotFound:  # the run was deleted since it was listed
                 continue
-            published = store.camera_frame(run_id=robot.run_id)
-        except NotFound:  # the run was deleted since it was listed
-            continue
-        if published is None:
-            return f"{env_id}: run {robot.run_id}'s actor drives this robot and has published no camera frame yet"
-        return CameraFrame(env_id=env_id, png=published[0], source=f"run {robot.run_id}")
-    claimed = store.claimed_run_of(env_id=env_id)
-    if claimed is not None:
-        return f"{env_id}: run {claimed}'s actor is taking the camera; its frames follow once it has started"
-    return None
+            if published is None:
+                return f"{env_id}: run {robot.run_id}'s actor drives this robot and has published no camera frame yet"
+            return CameraFrame(env_id=env_id, png=published[0], source=f"run {robot.run_id}")
+        process = store.robot_process_of(env_id=env_id)
+        if process is not None:
+            now = time.monotonic()
+            with self._lock:
+                due = now - self._watched.get(key, -WATCH_EVERY_S) >= WATCH_EVERY_S
+                if due:
+                    self._watched[key] = now
+            if due:
+                store.watch_robot(robot=process.robot)
+            published = store.robot_process_frame(robot=process.robot)
+            if published is None:
+                return f"{env_id}: the robot's process ({process.robot}) has published no camera frame yet"
+            return CameraFrame(env_id=env_id, png=published[0], source=f"robot {process.robot}")
+        claimed = store.claimed_run_of(env_id=env_id)
+        if claimed is not None:
+            return f"{env_id}: run {claimed}'s actor is taking the camera; its frames follow once it has started"
+        return (
+            f"{env_id}: no robot process serves this camera: start `raq robot {env_id}` on the robot's host "
+            "(or list it in RAQ_ROBOTS for `raq up`)"
+        )
 
 
 cameras = CameraSource()
-"""This server's cameras, one source a process (a real camera opens once)."""
-
-
-def close_cameras() -> None:
-    """Close every camera this process opened (at exit; the app's lifespan may call it at shutdown)."""
-    cameras.close()
-
-
-atexit.register(close_cameras)
+"""This server's view of the robots' cameras."""
 
 
 # ---------------------------------------------------------------- a photo beside the camera's frame

@@ -20,7 +20,6 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.routing import Match
 from starlette.types import Scope
 
-from app.camera import close_cameras
 from app.database_outage import database_error_response
 from app.routers import (
     compare,
@@ -95,7 +94,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             yield
         finally:
             gc.unfreeze()
-            close_cameras()
             store.dispose()
 
     app = FastAPI(

@@ -106,13 +106,18 @@ def is_robot(env_id: str) -> bool:
         return False
 
 
-def robot_preview(env_id: str, size: int, store: Store) -> tuple[bytes, bytes, str] | str:
-    """A robot's camera frame as the model sees it and as a person does, read without moving the arm; the reason
-    when the camera gives none."""
+def robot_preview(env_id: str, size: int, store: Store) -> tuple[bytes, bytes, str]:
+    """A robot's camera frame, as its process published it, as the model sees it and as a person does; grey frames
+    and the reason when there is none (no robot process up: the env is a robot's all the same)."""
     try:
         frame = cameras.frame(env_id, store)
-    except CameraUnavailable as error:
-        return str(error)[:500]
+    except CameraUnavailable as error:  # a robot env all the same: grey frames, and why there is no picture
+        blank = np.full((size, size, 3), 128, np.uint8)
+        return (
+            encode_png(blank),
+            encode_png(np.full((3 * DISPLAY_SIZE // 4, DISPLAY_SIZE, 3), 128, np.uint8)),
+            (f"a robot's camera, no frame to show: {error}"[:500]),
+        )
     image = Image.fromarray(frame.pixels)
     display = image.copy()
     display.thumbnail((DISPLAY_SIZE, DISPLAY_SIZE), Image.Resampling.LANCZOS)

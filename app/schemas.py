@@ -168,6 +168,11 @@ class GoalSetDetail(GoalSetOut):
 class CameraOut(BaseModel):
     env_id: str = Field(description="A robot env whose camera this server can show (module:EnvId).")
     frame_url: str = Field(description="Its current frame as PNG (GET; refreshed at most every 0.2 s).")
+    robot: str | None = Field(
+        description="The robot's own process that publishes its frames and drives it ('host/env id'); None: none is "
+        "up (start `raq robot ENV_ID` on the robot's host)."
+    )
+    robot_state: str | None = Field(description="What that process does now (waiting for a learner, driving run N).")
 
 
 class CamerasOut(BaseModel):

@@ -10,15 +10,17 @@ presses Ready, through, in turn:
    arm held meanwhile and resumed by the person after it;
 4. the New run form's preview and the Camera panel of a second `raq serve`, while the run acts.
 
-    python bench/robot_faults.py            # each learner's actor beside it
-    python bench/robot_faults.py --remote   # one `raq actor --run ID` on the robot's host, linked by the database
+    python bench/robot_faults.py                  # the robot's own process (`raq robot ENV_ID`) drives every run
+    python bench/robot_faults.py --actor beside   # no robot process: each learner starts an actor beside it
+    python bench/robot_faults.py --actor remote   # the run has remote_actor and one `raq actor --run ID` drives it
 
 It prints, from the log: the most processes that sent actions within any one control period (one driver: 1), the
 shortest interval between two actions, the robot steps lost at the takeovers (the actions the arm took before the
 new learner's actor moved it, less the step the run resumed at and the steps lost before: steps no replay got), the
 processes of a killed learner (its actor beside it included) still alive STRAY_AFTER_SECONDS later, and the arm
 moves made by others: a move by a process that never drove the arm (a server), or an action by a driver after a
-later driver's first. Writes <out>/figures.json.
+later driver's first; and the processes other than a driver that opened the robot's camera. Writes
+<out>/figures.json.
 """
 
 import argparse
@@ -46,6 +48,7 @@ from bench.processes import stop_all  # noqa: E402
 from bench.robot_standin import add_camera_goal_set, request, resetter  # noqa: E402
 from contract.config import TrainConfig  # noqa: E402
 from contract.store import RunStatus, Store  # noqa: E402
+from learner.robot_process import WAITING_FOR_LEARNER  # noqa: E402
 
 STALE_SECONDS = 10.0
 """RAQ_STALE_HEARTBEAT_SECONDS of the learners: a silent learner's run is taken over after this long."""
@@ -57,6 +60,7 @@ STRAY_AFTER_SECONDS = 15.0
 """A killed learner's process still alive this long after the kill is a stray."""
 MOVING_SECONDS = 120.0
 """How long the bench waits for the arm to move again after a fault before it says so."""
+ACTORS = ("robot", "beside", "remote")
 RESUMED = re.compile(r"resumed from checkpoint at step (\d+)")
 STARTS_AT = re.compile(r"the actor starts at step (\d+)")
 
@@ -64,8 +68,8 @@ STARTS_AT = re.compile(r"the actor starts at step (\d+)")
 class Bench:
     """The processes and the store of one fault bench."""
 
-    def __init__(self, out: Path, remote: bool) -> None:
-        self.out, self.remote = out, remote
+    def __init__(self, out: Path, actor: str) -> None:
+        self.out = out
         self.log = out / "arm.log"
         data = out / "data"
         data.mkdir(parents=True)
@@ -74,7 +78,8 @@ class Bench:
         upgrade(url)
         self.store = Store(url)
         config = TrainConfig.cpu_robot(
-            env_id=ENV_ID, total_steps=100_000, checkpoint_every=250, eval_every=100_000, remote_actor=remote,
+            env_id=ENV_ID, total_steps=100_000, checkpoint_every=250, eval_every=100_000,
+            remote_actor=actor == "remote",
             initial_random_steps=100, query_budget=0,
         )  # fmt: skip
         goal_set_id = add_camera_goal_set(self.store, count=10, image_size=config.image_size)
@@ -107,6 +112,14 @@ class Bench:
         url = f"http://127.0.0.1:{port}"
         wait_for_health(url)
         return url
+
+    def wait_for_robot(self) -> None:
+        """Until the robot's own process is up and waits for a learner."""
+        deadline = time.monotonic() + MOVING_SECONDS
+        while (process := self.store.robot_process_of(env_id=ENV_ID)) is None or process.state != WAITING_FOR_LEARNER:
+            if time.monotonic() > deadline:
+                raise SystemExit("the robot's process did not come up")
+            time.sleep(0.2)
 
     def add_learner(self) -> None:
         name = f"learner-{len(self.learners) + 1}"
@@ -225,6 +238,7 @@ def figures(log: Path, period: float, bench: Bench) -> dict:
     drivers = {pid for _, pid in actions}
     first_action = {pid: min(at for at, other in actions if other == pid) for pid in drivers}
     by_others = sum(1 for what, _, pid in entries if what in MOVES and pid not in drivers)
+    camera_by_others = sum(1 for what, _, pid in entries if what == "open" and pid not in drivers)
     displaced = sum(
         1 for at, pid in actions if any(start > first_action[pid] and start < at for start in first_action.values())
     )
@@ -235,6 +249,7 @@ def figures(log: Path, period: float, bench: Bench) -> dict:
         "steps_counted_twice": sum(int(t["counted_twice"]) for t in bench.takeovers),
         "stray_processes": len(bench.strays),
         "arm_moves_by_others": by_others + displaced,
+        "camera_opened_by_others": camera_by_others,
         "actions": len(actions),
         "drivers": len(drivers),
         "takeovers": bench.takeovers,
@@ -243,20 +258,27 @@ def figures(log: Path, period: float, bench: Bench) -> dict:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--remote", action="store_true", help="the actor as one `raq actor --run ID`")
+    parser.add_argument(
+        "--actor", choices=ACTORS, default="robot",
+        help="who drives the arm: the robot's own process (default), an actor beside each learner, or one "
+        "`raq actor --run ID` for a remote_actor run",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "out" / "robot-faults")
     args = parser.parse_args()
-    out = args.out / ("remote" if args.remote else "local")
+    out = args.out / args.actor
     if out.exists():
         raise SystemExit(f"{out} exists: remove it or choose another --out")
-    bench = Bench(out, args.remote)
+    bench = Bench(out, args.actor)
     done, presses = threading.Event(), []
     period = 0.2
     try:
         url = bench.serve("serve")
         threading.Thread(target=resetter, args=(url, done, presses), daemon=True).start()
-        if args.remote:
+        if args.actor == "remote":
             bench.start("actor", "actor", "--run", str(bench.run_id))
+        elif args.actor == "robot":
+            bench.start("robot", "robot", ENV_ID)
+            bench.wait_for_robot()
         bench.add_learner()
         bench.add_learner()
         bench.wait_for_moves(after=0.0, count=30)
@@ -311,14 +333,15 @@ def main() -> int:
             with contextlib.suppress(OSError):
                 process.send_signal(signal.SIGCONT)
         stop_all(bench.processes, signal.SIGINT, timeout=60)
-    result = figures(bench.log, period, bench) | {"remote": args.remote, "resets_pressed": len(presses)}
+    result = figures(bench.log, period, bench) | {"actor": args.actor, "resets_pressed": len(presses)}
     (out / "figures.json").write_text(json.dumps(result, indent=2) + "\n")
     print(
         f"most drivers at once: {result['most_drivers_at_once']}, steps lost: {result['steps_lost']}, "
         f"stray processes: {result['stray_processes']}, arm moves by others: {result['arm_moves_by_others']}"
     )
     print(f"shortest interval between two actions: {result['shortest_interval_ms']} ms; "
-          f"steps counted twice: {result['steps_counted_twice']}")  # fmt: skip
+          f"steps counted twice: {result['steps_counted_twice']}; "
+          f"camera opened by others: {result['camera_opened_by_others']}")  # fmt: skip
     bench.store.dispose()
     return 0
 

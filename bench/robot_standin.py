@@ -4,7 +4,7 @@ real-time actor, trained with a robot preset, reset by an automated person throu
     python bench/robot_standin.py --seeds 0-2 --parallel 3 --threads 1    # the CPU preset's seeds, robot.csv rows
     python bench/robot_standin.py --seeds 0 --steps 600                   # a short look at the timing figures
     python bench/robot_standin.py --seeds 0 --set device=cuda             # the paper's preset on a GPU
-    python bench/robot_standin.py --seeds 1 --steps 1600 --remote --probes   # `raq actor` (remote_actor), probed
+    python bench/robot_standin.py --seeds 1 --steps 1600 --actor remote --probes   # `raq actor` (remote_actor), probed
 
 Each seed starts `raq serve`, `raq oracle` and one learner (`raq learn --once`) on a fresh SQLite database, with
 80 goal photos from the stand-in's own camera (`robot.standin.goal_photos`, kept as the Camera panel keeps them)
@@ -158,7 +158,7 @@ def seed_config(args: argparse.Namespace, seed: int) -> tuple[str, TrainConfig]:
     preset = args.preset or robot_preset_for(str(overrides.get("device", "cpu"))).name
     config = getattr(TrainConfig, preset)(
         env_id=STANDIN, seed=seed, total_steps=args.steps or TARGETS[preset][0], eval_every=500,
-        remote_actor=args.remote, **overrides,
+        remote_actor=args.actor == "remote", **overrides,
     )  # fmt: skip
     return preset, config
 
@@ -184,6 +184,15 @@ def add_camera_goal_set(store: Store, *, count: int, image_size: int) -> int:
             display_png=image.display_png, source="camera",
         )  # fmt: skip
     return goal_set.id
+
+
+def wait_for_robot(store: Store, process: subprocess.Popen) -> None:
+    """Until the stand-in's own process has its row in the store (a learner then links to it)."""
+    deadline = time.monotonic() + 120
+    while store.robot_process_of(env_id=STANDIN) is None:
+        if process.poll() is not None or time.monotonic() > deadline:
+            raise SystemExit("the robot's process did not come up")
+        time.sleep(0.2)
 
 
 def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
@@ -222,7 +231,7 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
     done, presses = threading.Event(), []
     figures: dict[str, object] = {
         "task": TASK, "seed": seed, "preset": preset, "steps": config.total_steps, "env_id": STANDIN,
-        "remote": args.remote, "device": config.device, "image_size": config.image_size,
+        "actor": args.actor, "device": config.device, "image_size": config.image_size,
         "conv_filters": config.conv_filters, "target_steps": target_steps, "target_queries": target_queries,
     }  # fmt: skip
     started = time.monotonic()
@@ -233,9 +242,10 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
         evaluate = [sys.executable, __file__, "--evaluate", str(policy_file), str(evaluations), str(done_file),
                     str(config.image_size)]  # fmt: skip
         processes.append(subprocess.Popen(evaluate, env=env, stdout=logs["evaluate"], stderr=subprocess.STDOUT))
-        if args.remote:  # on the robot's host, sharing only the database and the checkpoint store
-            actor = raq + ["actor", "--run", str(run.id)]
+        if args.actor != "beside":  # the robot's own process, sharing only the database and the checkpoint store
+            actor = raq + (["actor", "--run", str(run.id)] if args.actor == "remote" else ["robot", STANDIN])
             processes.append(subprocess.Popen(actor, env=env, stdout=logs["actor"], stderr=subprocess.STDOUT))
+            wait_for_robot(store, processes[-1])
         learner = subprocess.Popen(raq + ["learn", "--once"], env=env, stdout=logs["learn"], stderr=subprocess.STDOUT)
         processes.append(learner)
         threading.Thread(target=resetter, args=(url, done, presses), daemon=True).start()
@@ -359,7 +369,11 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "out" / "robot-standin")
     parser.add_argument("--csv", type=Path, default=ROBOT_CSV, help="the table every seed's row goes to")
     parser.add_argument("--report", action="store_true", help="only write the rows of the seeds run in --out")
-    parser.add_argument("--remote", action="store_true", help="the actor as its own `raq actor` (remote_actor)")
+    parser.add_argument(
+        "--actor", choices=("robot", "beside", "remote"), default="robot",
+        help="who drives the stand-in: its own process, `raq robot` (default); an actor beside the learner; or "
+        "`raq actor --run ID` for a remote_actor run",
+    )  # fmt: skip
     parser.add_argument("--probes", action="store_true", help="Stop robot at STOP_AT; SIGKILL at the end")
     parser.add_argument("--seed", type=int, default=None, help=argparse.SUPPRESS)  # (one seed, in its own process;
     # --seeds is then ignored)

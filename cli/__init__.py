@@ -1,4 +1,4 @@
-"""The `raq` command: serve, learn, up, oracle, goals, migrate, sessions, config."""
+"""The `raq` command: serve, learn, robot, actor, up, oracle, goals, migrate, sessions, config."""
 
 import argparse
 import logging
@@ -65,24 +65,44 @@ def cmd_learn(args: argparse.Namespace) -> int:
     return work(settings, worker_name=args.name, once=args.once)
 
 
-def cmd_actor(args: argparse.Namespace) -> int:
-    """Drive a run's robot from this host for its learner elsewhere, linked by the database and checkpoint store."""
+def _serve_robot(env_id: str | None, run_id: int | None) -> int:
+    """The robot's own process (learner/robot_process.py) until Ctrl-C, SIGTERM, or the one run it serves ends."""
     settings = get_settings()
     from contract.store import Store
-    from learner.actor_link import serve_remote
+    from learner.robot_process import serve_robot
 
     def _interrupt(signum: int, _frame: object) -> None:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, _interrupt)
     store = Store(settings.resolved_database_url)
-    print(f"actor of run {args.run}: waiting for its learner at {settings.resolved_database_url}", flush=True)
+    if run_id is not None:
+        env_id = store.get_run(run_id=run_id).env_id
+    assert env_id is not None
+    what = f"robot {env_id}" + (f" (run {run_id} only)" if run_id is not None else "")
+    print(f"{what}: serving its camera and driving its runs through {settings.resolved_database_url}", flush=True)
     try:
-        ended = serve_remote(store, run_id=args.run, checkpoint_base=settings.resolved_checkpoint_url)
+        ended = serve_robot(store, env_id=env_id, checkpoint_base=settings.resolved_checkpoint_url, only_run=run_id)
     except KeyboardInterrupt:
         ended = "interrupted: the arm is held safe"
-    print(f"actor of run {args.run}: {ended}", flush=True)
+    print(f"{what}: {ended}", flush=True)
     return 0
+
+
+def cmd_robot(args: argparse.Namespace) -> int:
+    """Own a robot on this host: its camera for the pages, its arm for whichever run's learner links to it."""
+    from contract.envs import env_id_problem
+
+    problem = env_id_problem(args.env_id, allowed_modules=get_settings().env_modules)
+    if problem is not None:
+        print(f"raq robot: {problem}", file=sys.stderr)
+        return 2
+    return _serve_robot(args.env_id, None)
+
+
+def cmd_actor(args: argparse.Namespace) -> int:
+    """Drive one run's robot from this host for its learner elsewhere, linked by the database and checkpoint store."""
+    return _serve_robot(None, args.run)
 
 
 def cmd_config(_args: argparse.Namespace) -> int:
@@ -154,7 +174,8 @@ class LearnerRestarts:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    """The web server and N learner workers, their logs in one terminal; Ctrl-C stops them all."""
+    """The web server, N learner workers and the robots of RAQ_ROBOTS, their logs in one terminal; Ctrl-C stops them
+    all."""
     settings = get_settings()
     _migrate(settings)
     if args.demo:
@@ -180,11 +201,17 @@ def cmd_up(args: argparse.Namespace) -> int:
         threading.Thread(target=_pump, args=(prefix, child.stdout, lock), daemon=True).start()
 
     start("web    ", serve)
+    # each robot listed in RAQ_ROBOTS gets its own process: the one that opens its camera and moves its arm
+    restarted = {f"robot-{index + 1}": raq + ["robot", env_id] for index, env_id in enumerate(settings.robots)}
     learner_names = ["learner" if learners == 1 else f"learn-{index + 1}" for index in range(learners)]
-    for prefix in learner_names:
-        start(prefix, raq + ["learn"], learner_env)
+    restarted.update({prefix: raq + ["learn"] for prefix in learner_names})
+    for prefix, command in restarted.items():
+        start(prefix, command, learner_env)
     port = args.port or settings.port
-    print(f"raq up: web on http://{settings.host}:{port} and {learners} learner(s)  (Ctrl-C stops all)", flush=True)
+    robots = f" and {len(settings.robots)} robot(s)" if settings.robots else ""
+    print(
+        f"raq up: web on http://{settings.host}:{port}, {learners} learner(s){robots}  (Ctrl-C stops all)", flush=True
+    )
 
     stopping = threading.Event()
 
@@ -194,18 +221,18 @@ def cmd_up(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
     code = 0
-    restarts = {prefix: LearnerRestarts() for prefix in learner_names}
+    restarts = {prefix: LearnerRestarts() for prefix in restarted}
     while not stopping.is_set():
         web = children["web    "]
         if web.poll() is not None:
             code = web.returncode or 1
             print(f"raq up: web exited with code {web.returncode}; stopping the learners", flush=True)
             break
-        for prefix in learner_names:
+        for prefix, command in restarted.items():
             child = children[prefix]
             if child.poll() is not None and restarts[prefix].due():
                 print(f"raq up: {prefix} exited with code {child.returncode}; starting it again", flush=True)
-                start(prefix, raq + ["learn"], learner_env)
+                start(prefix, command, learner_env)
         time.sleep(0.2)
     for child in children.values():
         if child.poll() is None:
@@ -239,8 +266,14 @@ def build_parser() -> argparse.ArgumentParser:
     learn.add_argument("--once", action="store_true", help="train at most one run, then exit")
     learn.set_defaults(handler=cmd_learn)
 
+    robot = commands.add_parser(
+        "robot", help="own a robot on this host: its camera for the pages, its arm for the runs that train on it"
+    )
+    robot.add_argument("env_id", help="the robot's env id (module:EnvId, its module in RAQ_ENV_MODULES)")
+    robot.set_defaults(handler=cmd_robot)
+
     actor = commands.add_parser(
-        "actor", help="drive a run's robot from this host while its learner trains elsewhere (remote_actor)"
+        "actor", help="drive one run's robot from this host while its learner trains elsewhere (remote_actor)"
     )
     actor.add_argument("--run", type=int, required=True, help="the run's id")
     actor.set_defaults(handler=cmd_actor)

@@ -295,8 +295,9 @@ class ExecutionConfig:
     reset_every_episode: bool = False
     """Real time: a person resets the scene before every episode (a robot env that needs it always asks)."""
     remote_actor: bool = False
-    """Real time: the actor runs on the robot's host (`raq actor --run ID` there), linked to the learner through the
-    database and the checkpoint store; False: in a process beside the learner."""
+    """Real time: the learner waits for the robot's own process (`raq robot ENV_ID` or `raq actor --run ID` on the
+    robot's host; the learner never makes the env); False: it links to that process when one is up, else starts an
+    actor beside itself."""
 
 
 @dataclass

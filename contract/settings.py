@@ -49,6 +49,11 @@ class Settings(BaseSettings):
         description="Python modules (and their submodules) a run may name as 'module:EnvId'; the learner imports "
         "no other module for an env. Comma-separated in RAQ_ENV_MODULES.",
     )
+    robots: Annotated[tuple[str, ...], NoDecode] = Field(
+        default=(),
+        description="Robot env ids whose own process (`raq robot ENV`: camera and arm) `raq up` starts and keeps "
+        "running on this host. Comma-separated in RAQ_ROBOTS.",
+    )
     server_url: str | None = Field(default=None, description="Base URL the oracle talks to.")
     robot_host: str | None = Field(
         default=None,
@@ -71,7 +76,7 @@ class Settings(BaseSettings):
         "it gives its run back to the queue (to resume from its last checkpoint once the database is back).",
     )  # fmt: skip
 
-    @field_validator("env_modules", mode="before")
+    @field_validator("env_modules", "robots", mode="before")
     @classmethod
     def _split_modules(cls, value: object) -> object:
         if isinstance(value, str):

@@ -1,6 +1,7 @@
 """The link between a learner and its real-time actor, through what the rest of the product shares: the database
 and the checkpoint store (a folder both mount, or object storage by URL). The actor runs beside its learner
-(`ActorProcess`, a child process) or on the robot's host (`raq actor --run ID`, with the learner on a GPU box, say);
+(`ActorProcess`, a child process) or in the robot's own process (`raq robot ENV`, on the robot's host while the
+learner trains on a GPU box, say);
 the link is the same, so that every step the robot takes is stored as it happens.
 
 - The learner's end (`RemoteActor`; `ActorProcess` starts its actor first) opens the link, stamps a keep-alive four
@@ -12,8 +13,8 @@ the link is the same, so that every step the robot takes is stored as it happens
   and another posts the actor's messages, so the robot's clock never waits for the database.
 - `serve_child` is the actor beside its learner: it drives the robot for that learner only, and once the learner's
   process is gone (its parent changes) it holds the arm and exits, its last steps posted first.
-- `serve_remote` is `raq actor`: it makes the robot's env once and drives it for every learner that opens the
-  run's link, holding the arm safe between them; it ends when the run ends or on Ctrl-C.
+- A robot's own process (learner/robot_process.py: `raq robot ENV`, `raq actor --run ID`) makes the robot's env
+  once and drives it for every learner that opens a link to it, holding the arm safe between them.
 
 The watchdog is the actor loop's: no keep-alive for `watchdog_seconds` (the learner died, or its host is cut off)
 or no answer from the database that long, and the arm is held safe.
@@ -36,11 +37,10 @@ import numpy as np
 from gymnasium import spaces
 from PIL import Image
 
-from contract.checkpoint_location import ACTOR_POLICY_FILENAME, checkpoint_url, sibling
-from contract.config import TrainConfig
-from contract.envs import control_rate, encode_png, jsonable, make_env
-from contract.store import RunStatus, Store, is_transient
-from learner.actor import KEEPALIVE_SECONDS, START_SECONDS, ActorLoop, ActorSettings, ActorState
+from contract.checkpoint_location import ACTOR_POLICY_FILENAME, sibling
+from contract.envs import encode_png, jsonable
+from contract.store import Store, is_transient
+from learner.actor import KEEPALIVE_SECONDS, START_SECONDS, ActorLoop, ActorSettings
 from learner.actor_messages import (
     ActorError,
     ActorMessage,
@@ -62,11 +62,9 @@ LINK_POLL_SECONDS = 0.05
 POST_SECONDS = 0.02
 """How often the actor's messages waiting to be posted go to the database (in one transaction)."""
 ACTOR_WAIT_SECONDS = 600.0
-"""How long a learner waits for `raq actor --run ID` to come up on the robot's host before the run fails."""
+"""How long a learner waits for the robot's process (`raq robot ENV`) to take its run before the run fails."""
 ACTOR_LIVE_SECONDS = 5.0
 """An actor that reported within this many seconds is up."""
-WAITING_FOR_LEARNER = "waiting for a learner"
-"""The remote actor's state between learners (the arm held safe)."""
 
 
 # ====================================================================== messages as rows
@@ -265,72 +263,6 @@ def serve_child(settings: ActorSettings, policy_url: str, parent_pid: int, start
         os._exit(code)
 
 
-def serve_remote(store: Store, *, run_id: int, checkpoint_base: str, stop: threading.Event | None = None) -> str:
-    """`raq actor --run ID`: drive the robot for each learner that opens the run's link until the run ends (or
-    `stop` is set, or Ctrl-C); the arm is held safe between learners. Returns why it ended."""
-    stop = stop or threading.Event()
-    run = store.get_run(run_id=run_id)
-    config = TrainConfig.from_dict({**run.config_values(), "device": "cpu", "precision": "fp32"})
-    hz = control_rate(config.env_id, config.control_hz)
-    if hz <= 0:
-        raise ValueError(f"{config.env_id} is not a robot env: give the run a control_hz to drive it in real time")
-    env = make_env(config.env_id, image_size=config.image_size, display_size=config.display_size)
-    policy_url = sibling(checkpoint_url(checkpoint_base, run_id), ACTOR_POLICY_FILENAME)
-    settings = ActorSettings(
-        config.to_dict(), run_id=run_id, database_url=store.url, control_hz=hz,
-        person_reset=config.reset_every_episode,
-    )  # fmt: skip
-    announcement = spaces_json(env.action_space, env.observation_space, hz)  # type: ignore[arg-type]
-    state = WAITING_FOR_LEARNER  # (after a learner died: "held safe: learner gone" until the next one)
-    try:
-        while not stop.is_set():
-            ended = _wait_for_learner(
-                store, run_id=run_id, announcement=announcement, state=state, limit=config.watchdog_seconds, stop=stop
-            )
-            if ended is not None:
-                return ended
-            link = StoreLink(store, run_id=run_id, policy_url=policy_url, hz=hz)
-            actor = ActorLoop(settings, link.connection, link.outbox, env=env)
-            try:
-                actor.run()
-            finally:
-                link.close()
-            state = ActorState.LEARNER_GONE if actor.state == ActorState.LEARNER_GONE else WAITING_FOR_LEARNER
-        return "stopped"
-    finally:
-        with contextlib.suppress(Exception):
-            env.unwrapped.stop()  # type: ignore[attr-defined]
-        with contextlib.suppress(Exception):
-            store.report_actor(run_id=run_id, state=ActorState.CLOSED)
-        env.close()
-
-
-def _wait_for_learner(
-    store: Store, *, run_id: int, announcement: dict[str, Any], state: str, limit: float, stop: threading.Event
-) -> str | None:
-    """Announce the actor and report it in `state` until a learner whose keep-alive is younger than `limit`
-    seconds opens the link (None), or why not to wait: the run ended, or `stop`."""
-    announced = False
-    while not stop.is_set():
-        try:
-            if not announced:
-                store.announce_actor(run_id=run_id, spaces=announcement)
-                announced = True
-            store.report_actor(run_id=run_id, state=state)
-            run = store.get_run(run_id=run_id)
-            if run.status not in RunStatus.LIVE:
-                return f"run {run.status}"
-            link = store.actor_link(run_id=run_id)
-            fresh = link.learner_age_seconds is not None and link.learner_age_seconds < limit
-            if fresh and link.start_step is not None and not link.learner_closed:
-                return None
-        except Exception as error:  # the store away: keep waiting (the arm is held)
-            if not is_transient(error):
-                raise
-        stop.wait(0.5)
-    return "stopped"
-
-
 # ====================================================================== the learner's end
 class RemoteActor:
     """The learner's handle on an actor on another host, with the interface of the actor beside it."""
@@ -359,7 +291,7 @@ class RemoteActor:
         self.control_hz = float(announced["control_hz"])
 
     def _wait_for_actor(self, heartbeat: Any) -> None:
-        """Until `raq actor --run ID` has announced itself and reported lately (ActorError after
+        """Until the robot's process has announced itself for this run and reported lately (ActorError after
         ACTOR_WAIT_SECONDS)."""
         deadline = time.monotonic() + ACTOR_WAIT_SECONDS
         while True:
@@ -369,8 +301,8 @@ class RemoteActor:
                 return
             if time.monotonic() > deadline:
                 raise ActorError(
-                    f"no actor for run {self.run_id} within {ACTOR_WAIT_SECONDS:.0f} s: start `raq actor --run "
-                    f"{self.run_id}` on the robot's host"
+                    f"no actor for run {self.run_id} within {ACTOR_WAIT_SECONDS:.0f} s: start `raq robot ENV_ID` (or "
+                    f"`raq actor --run {self.run_id}`) on the robot's host"
                 )
             if heartbeat is not None:
                 heartbeat()

@@ -1,8 +1,9 @@
 """The real-time runner: a robot (or any env given a control_hz) steps at its own rate in an actor that never
 waits for the learner; the learner takes the actor's steps as they come and runs SAC updates while none waits.
 
-The actor runs in a process beside the learner or, with remote_actor, on the robot's host (`raq actor`); either is
-linked through the database and the checkpoint store (learner/actor_link.py). There are no evaluation envs: a robot
+The actor is the robot's own process when one is up (`raq robot ENV`, learner/robot_process.py; with remote_actor
+the learner waits for it), else a process the learner starts beside itself; either is linked through the database
+and the checkpoint store (learner/actor_link.py). There are no evaluation envs: a robot
 is not opened twice. A person's Evaluate now episodes run on the robot itself and are asked about
 (learner/robot_evaluation.py).
 
@@ -48,7 +49,8 @@ class RealTimeRunner:
         execution = config.execution
         self.claim = store.run_claim(run_id=control.run_id)  # (the learner's, read as it set the run up)
         self.actor: RemoteActor
-        if execution.remote_actor:  # on the robot's host: the env is neither made nor imported here
+        if execution.remote_actor or store.robot_process_of(env_id=config.env_id) is not None:
+            # the robot's own process drives it (`raq robot`, `raq actor`): the env is neither made nor imported here
             self.actor = RemoteActor(
                 store, run_id=control.run_id, claim=self.claim, checkpoint_file=str(checkpoint_file),
                 heartbeat=control.tick,

@@ -2,9 +2,9 @@
 
 Subclass `RobotEnv` and write five methods: `read_camera`, `send_action`, `reset_scene`, `hold_safe` and,
 if the robot can tell, `read_success`. Only `send_action`, `reset_scene` and `hold_safe` move or hold the arm:
-`__init__` connects to the camera and the arm and never moves it, and `read_camera` only reads. The web server
-makes the env to show the camera's frames, never calls those three, and lets go of it (`let_go()`) before
-`close()`, so that its close holds nothing either.
+`__init__` connects to the camera and the arm and never moves it, and `read_camera` only reads. One process makes
+the env: the robot's own (`raq robot ENV_ID`, learner/robot_process.py), which reads the camera for the pages
+between runs and drives the run whose learner links to it; the web server never makes it.
 
 The base class does the rest the same way for every robot: actions are clipped to [-1, 1] and passed through your
 `limit_action` (workspace bounds, speed limits; told the seconds since the previous action) before they reach the
@@ -33,7 +33,7 @@ class RobotStopped(RuntimeError):
 class CameraBusy(OSError):
     """The camera is open in another process (most USB cameras open in one process at a time). Raise it from
     `__init__` when the camera cannot be opened for that reason: a run's actor then tries again for a while
-    (learner/actor.py CAMERA_BUSY_SECONDS), as the server hands the camera over to it."""
+    (learner/actor.py CAMERA_BUSY_SECONDS)."""
 
 
 class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -115,6 +115,14 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         return action
 
     # ------------------------------------------------------------------ the same for every robot
+    def set_view(self, *, image_size: int, display_size: int) -> None:
+        """The observation's side and the stored view's, for the run being served (the robot's process keeps one
+        env, and so its camera, for runs of any sizes). Moves nothing."""
+        if image_size < 8 or display_size < 8:
+            raise ValueError("image_size and display_size must be at least 8")
+        self.image_size, self.display_size = int(image_size), int(display_size)
+        self.observation_space = spaces.Box(0, 255, (self.image_size, self.image_size, 3), np.uint8)
+
     def observe(self, frame: np.ndarray) -> np.ndarray:
         """A camera frame as the networks see it: centre square, image_size pixels, as goal photos are made."""
         frame = np.asarray(frame)

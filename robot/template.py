@@ -1,10 +1,12 @@
 """A robot env to copy: put this file beside your code (say my_lab/arm.py), fill in the marked parts, allow the
-module (RAQ_ENV_MODULES=my_lab.arm) and start a run on the env "my_lab.arm:MyArm-v0".
+module (RAQ_ENV_MODULES=my_lab.arm), start the robot's own process (`raq robot my_lab.arm:MyArm-v0`, or
+RAQ_ROBOTS=my_lab.arm:MyArm-v0 for `raq up`) and start a run on the env "my_lab.arm:MyArm-v0".
 
 What each part must do is in robot/base.py. Keep the safety limits here, in the env: the learner only ever sends
 actions in [-1, 1], and `limit_action` is the last word before the arm moves. Only `send_action`, `reset_scene`
 and `hold_safe` may move or hold the arm: `__init__` connects and never moves it, and `read_camera` only reads (the
-web server makes this env to show the camera's frames, and never calls those three).
+robot's own process makes this env once and reads the camera between runs for the pages; no other process opens
+it while that process is up).
 """
 
 import gymnasium as gym

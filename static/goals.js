@@ -227,14 +227,14 @@ async function refreshCamera(generation) {
       cameraStatus("error", `No camera view: ${detail}`);
       return again();
     }
-    const source = response.headers.get("X-Camera-Source") || "camera";
+    const source = response.headers.get("X-Camera-Source") || "robot";
     const url = URL.createObjectURL(await response.blob());
     if (generation !== camera.generation) return URL.revokeObjectURL(url);
     const image = document.getElementById("camera-live");
     const previous = camera.shownUrl;
     image.onload = () => {
       if (previous) URL.revokeObjectURL(previous);
-      const seen = source === "camera" ? "live" : `live, through ${source}'s actor (it drives this robot now)`;
+      const seen = source.startsWith("run ") ? `live, through ${source}'s actor (it drives this robot now)` : `live, from the robot's process (${source})`;
       cameraStatus("info", `${camera.envId}: ${seen} · ${image.naturalWidth}×${image.naturalHeight} · Capture or press C to add this view`);
     };
     camera.shownUrl = url;

@@ -2,6 +2,7 @@
 
 import io
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -293,6 +294,60 @@ def learn_once_beside(settings: Settings, person: Callable[[threading.Event], No
     finally:
         done.set()
         helper.join()
+
+
+# ---------------------------------------------------------------- a robot's own process
+STANDIN = "robot.standin:PusherStandIn-v0"
+
+
+@contextmanager
+def robot_serving(store: Store, env_id: str, checkpoint_base: Path | str) -> Iterator[None]:
+    """The robot's own process (learner/robot_process.py) on a thread of this process, up once its row is in the
+    store; stopped (the arm held) at the end."""
+    from learner.robot_process import serve_robot  # noqa: PLC0415 - the robot tests only
+
+    stop = threading.Event()
+    ended: list[str] = []
+    thread = threading.Thread(
+        target=lambda: ended.append(serve_robot(store, env_id=env_id, checkpoint_base=str(checkpoint_base), stop=stop)),
+        name=f"robot {env_id}", daemon=True,
+    )  # fmt: skip
+    thread.start()
+    try:
+        deadline = time.monotonic() + 60
+        while (process := store.robot_process_of(env_id=env_id)) is None or process.state != "waiting for a learner":
+            assert thread.is_alive() and time.monotonic() < deadline, f"the robot process of {env_id} did not come up"
+            time.sleep(0.05)
+        yield
+    finally:
+        stop.set()
+        thread.join(timeout=30)
+    assert ended == ["stopped"], ended
+
+
+@contextmanager
+def robot_subprocess(env: dict[str, str], env_id: str, store: Store, log: Path) -> Iterator[subprocess.Popen]:
+    """`raq robot ENV_ID` in a process of its own with `env` (its output in `log`), up once its row is in the store
+    and it waits for a learner; interrupted (the arm held) at the end."""
+    with log.open("wb") as output:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "cli", "robot", env_id], cwd=ROOT, env=env, stdout=output, stderr=subprocess.STDOUT
+        )
+        try:
+            deadline = time.monotonic() + 120
+            while (row := store.robot_process_of(env_id=env_id)) is None or row.state != "waiting for a learner":
+                assert process.poll() is None, log.read_text()
+                assert time.monotonic() < deadline, f"the robot process did not come up: {log.read_text()}"
+                time.sleep(0.1)
+            yield process
+        finally:
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+            try:
+                process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
 
 
 # ---------------------------------------------------------------- the browser tests' Chromium and windows

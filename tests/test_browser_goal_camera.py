@@ -8,10 +8,12 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import io
 import re
+from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import pytest
+from conftest import STANDIN, robot_serving
 from PIL import Image
 from playwright.sync_api import Page, expect
 from test_browser import _scene, _shot
@@ -20,7 +22,13 @@ from test_browser_daily_use import watch
 from contract.store import Store
 
 pytestmark = pytest.mark.browser
-STANDIN = "robot.standin:PusherStandIn-v0"
+
+
+@pytest.fixture(autouse=True)
+def standin(store: Store, tmp_path: Path) -> Iterator[None]:
+    """The stand-in robot's own process, up: it alone opens the camera."""
+    with robot_serving(store, STANDIN, tmp_path / "checkpoints"):
+        yield
 
 
 def _box(page: Page, selector: str) -> dict:

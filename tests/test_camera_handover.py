@@ -1,6 +1,7 @@
-"""A robot whose camera opens in one process at a time (most USB cameras), with the goal-set page's live view open
-on a server of its own: a run of it is created and starts, its actor gets the camera, the page goes on showing
-frames (the actor's), and the server never moves or holds the arm, previews included."""
+"""A robot whose camera opens in one process at a time (most USB cameras), owned by its own process (`raq robot`),
+with the goal-set page's live view open on a server of its own: a run of it is created and starts, the robot's
+process drives it, the page goes on showing frames, and nothing but the robot's process opens the camera or moves
+or holds the arm, previews and the learner included."""
 
 import subprocess
 import sys
@@ -9,7 +10,7 @@ import time
 from pathlib import Path
 
 import httpx
-from conftest import run_live_server
+from conftest import robot_subprocess, run_live_server
 from recording_arm import EXCLUSIVE_ENV_ID, recorded_by
 from test_actor import ROOT, arm_env, real_time_config, wait_for
 
@@ -20,17 +21,21 @@ MOVES = ("action", "reset", "hold")
 """What the arm's log says when something moved or held it."""
 
 
-def test_a_run_starts_while_the_camera_panel_is_open_and_the_server_never_moves_the_arm(
+def test_a_run_starts_while_the_camera_panel_is_open_and_only_the_robots_process_touches_the_robot(
     dot_reach: tuple[Settings, Store, int], tmp_path: Path
 ) -> None:
     settings, store, goal_set_id = dot_reach
     log = tmp_path / "arm.log"
     robot_env = arm_env(settings, log)
     server_env = {key: robot_env[key] for key in ("RAQ_ENV_MODULES", "PYTHONPATH", "RECORDING_ARM_LOG")}
-    with run_live_server(store.url, tmp_path, server_env) as server:
+    with (
+        run_live_server(store.url, tmp_path, server_env) as server,
+        robot_subprocess(robot_env, EXCLUSIVE_ENV_ID, store, tmp_path / "robot.log") as robot,
+    ):
         frames = httpx.Client(base_url=server.url, timeout=120)
         first = frames.get("/api/cameras/frame", params={"env_id": EXCLUSIVE_ENV_ID})
-        assert first.status_code == 200, first.text  # the live view: the server has the camera
+        assert first.status_code == 200, first.text  # the live view: the robot's process publishes its frames
+        assert first.headers["x-camera-source"].startswith("robot ")
         answers: list[int] = []
         panel_open = threading.Event()
         panel_open.set()
@@ -68,10 +73,10 @@ def test_a_run_starts_while_the_camera_panel_is_open_and_the_server_never_moves_
             viewer.join(timeout=10)
             store.request_stop(run_id=run_id)
             output = learner.communicate(timeout=120)[0].decode()
-        server_pid = server.process.pid
-        by_server = [(what, pid) for what, _, pid in recorded_by(log) if pid == server_pid and what in MOVES]
-        assert by_server == [], by_server
-        assert any(what == "open" and pid == server_pid for what, _, pid in recorded_by(log))  # it had the camera
+        assert learner.returncode is not None
+        others = [(what, pid) for what, _, pid in recorded_by(log) if pid != robot.pid and what in (*MOVES, "open")]
+        assert others == [], others  # not the server, not the learner
+        assert any(what == "action" and pid == robot.pid for what, _, pid in recorded_by(log))
         assert "CameraBusy" not in output
 
 

@@ -1,6 +1,7 @@
 """Goals from the robot's own camera, through the API: the list of robot cameras, the live frame, Capture, and the
-check of an uploaded photo against the camera. The real stand-in robot (MuJoCo rendering, MUJOCO_GL=egl by
-default) and the real SQLite store; no mocks."""
+check of an uploaded photo against the camera. The real stand-in robot served by its own process
+(learner/robot_process.py, on a thread here; MuJoCo rendering, MUJOCO_GL=egl by default) and the real SQLite store;
+no mocks. The server never opens a camera: without the robot's process there is no frame."""
 
 import os
 
@@ -8,17 +9,26 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import io
 import time
+from collections.abc import Iterator
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import pytest
+from conftest import STANDIN, robot_serving
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from app.camera import CameraSource, cameras
 from contract.envs import SIM_ENV_IDS
 from contract.store import RunStatus, Store
+from contract.store.robot_processes import FRAME_IDLE_SECONDS, FRAME_WATCHED_SECONDS
 
-STANDIN = "robot.standin:PusherStandIn-v0"
+
+@pytest.fixture
+def standin(store: Store, tmp_path: Path) -> Iterator[None]:
+    """The stand-in robot's own process, up."""
+    with robot_serving(store, STANDIN, tmp_path / "checkpoints"):
+        yield
 
 
 def _png(pixels: np.ndarray) -> bytes:
@@ -53,19 +63,22 @@ def _check(client: TestClient, goal_set_id: int, photo: bytes, **params: str) ->
     return response.json()
 
 
-def test_the_cameras_are_the_robot_envs_and_the_frame_is_the_whole_4_by_3_picture(client: TestClient) -> None:
+def test_the_cameras_are_the_robot_envs_and_the_frame_is_the_whole_4_by_3_picture(
+    client: TestClient, standin: None
+) -> None:
     listed = client.get("/api/cameras").json()["cameras"]
     env_ids = [camera["env_id"] for camera in listed]
     assert STANDIN in env_ids
     assert "VisualPusher-v0" not in env_ids and not set(SIM_ENV_IDS) & set(env_ids)  # simulated, not a RobotEnv
     assert not any(env_id.endswith("MyArm-v0") for env_id in env_ids)  # robot.template is a file to copy
-    standin = next(camera for camera in listed if camera["env_id"] == STANDIN)
+    camera = next(camera for camera in listed if camera["env_id"] == STANDIN)
+    assert camera["robot"].endswith(f"/{STANDIN}") and camera["robot_state"] == "waiting for a learner"
 
-    response = client.get(standin["frame_url"])
+    response = client.get(camera["frame_url"])
     assert response.status_code == 200, response.text
     assert response.headers["content-type"] == "image/png"
     assert response.headers["cache-control"] == "no-store"
-    assert response.headers["x-camera-source"] == "camera"
+    assert response.headers["x-camera-source"] == f"robot {camera['robot']}"
     frame = _pixels(response.content)
     height, width = frame.shape[:2]
     assert width * 3 == height * 4  # 4:3, grey bands at the sides
@@ -73,7 +86,7 @@ def test_the_cameras_are_the_robot_envs_and_the_frame_is_the_whole_4_by_3_pictur
 
 
 def test_capture_adds_the_frame_as_a_goal_photo_the_model_sees_as_the_robot_would(
-    client: TestClient, store: Store
+    client: TestClient, store: Store, standin: None
 ) -> None:
     goal_set = _goal_set(client, image_size=40)
     shown = _pixels(_frame(client))
@@ -98,7 +111,9 @@ def test_capture_adds_the_frame_as_a_goal_photo_the_model_sees_as_the_robot_woul
     assert client.get(f"/api/goal-sets/{goal_set['id']}").json()["example_count"] == 1
 
 
-def test_photo_check_names_each_difference_from_the_camera_and_stores_nothing(client: TestClient, store: Store) -> None:
+def test_photo_check_names_each_difference_from_the_camera_and_stores_nothing(
+    client: TestClient, store: Store, standin: None
+) -> None:
     goal_set = _goal_set(client)
     frame_png = _frame(client)
     frame = _pixels(frame_png)
@@ -106,7 +121,7 @@ def test_photo_check_names_each_difference_from_the_camera_and_stores_nothing(cl
     square = _check(client, goal_set["id"], _png(np.full((48, 48, 3), (210, 200, 190), np.uint8)))
     assert {"aspect", "size"} <= {warning["kind"] for warning in square["warnings"]}
     assert "square" in square["warnings"][0]["message"] and "4:3" in square["warnings"][0]["message"]
-    assert square["camera"]["env_id"] == STANDIN and square["camera"]["source"] == "camera"
+    assert square["camera"]["env_id"] == STANDIN and square["camera"]["source"].startswith("robot ")
     assert (square["camera"]["width"], square["camera"]["height"]) == (frame.shape[1], frame.shape[0])
     assert square["photo"] == {"filename": "goal.png", "width": 48, "height": 48}
 
@@ -172,11 +187,40 @@ def test_an_env_that_is_not_a_robot_camera_is_refused_and_nothing_is_stored(clie
     assert store.list_goal_examples(goal_set_id=goal_set["id"]) == []
 
 
-def test_a_running_actor_on_the_same_robot_is_seen_through_its_published_frame(
-    client: TestClient, store: Store
+def test_without_the_robots_process_there_is_no_frame_and_the_page_is_told_how_to_start_it(
+    client: TestClient, store: Store, tmp_path: Path
 ) -> None:
-    _frame(client)  # this server has the camera open
-    assert STANDIN in cameras.open_env_ids()
+    response = client.get("/api/cameras/frame", params={"env_id": STANDIN})
+    assert response.status_code == 409 and f"start `raq robot {STANDIN}`" in response.json()["detail"]
+    camera = next(camera for camera in client.get("/api/cameras").json()["cameras"] if camera["env_id"] == STANDIN)
+    assert camera["robot"] is None and camera["robot_state"] is None
+    preview = client.get("/api/envs/preview", params={"env_id": STANDIN, "size": 48})
+    assert preview.status_code == 200 and "no frame to show" in preview.json()["description"]  # a robot env still
+    goal_set = _goal_set(client)
+    response = client.post(f"/api/goal-sets/{goal_set['id']}/capture", json={"env_id": STANDIN})
+    assert response.status_code == 409 and store.list_goal_examples(goal_set_id=goal_set["id"]) == []
+
+    with robot_serving(store, STANDIN, tmp_path / "checkpoints"):
+        time.sleep(0.25)  # past the server's last look-up of the store
+        first = client.get("/api/cameras/frame", params={"env_id": STANDIN})
+        assert first.status_code == 200, first.text
+        deadline = time.monotonic() + 5  # a page watches: the robot publishes often
+        while (process := store.robot_process_of(env_id=STANDIN)) is not None and not (
+            process.watched and process.frame_age_seconds is not None
+            and process.frame_age_seconds < FRAME_IDLE_SECONDS / 2
+        ):  # fmt: skip
+            assert time.monotonic() < deadline, process
+            client.get("/api/cameras/frame", params={"env_id": STANDIN})
+            time.sleep(FRAME_WATCHED_SECONDS)
+    assert store.robot_process_of(env_id=STANDIN) is None  # its row goes with it
+    time.sleep(0.25)
+    assert client.get("/api/cameras/frame", params={"env_id": STANDIN}).status_code == 409
+
+
+def test_a_running_actor_on_the_same_robot_is_seen_through_its_published_frame(
+    client: TestClient, store: Store, standin: None
+) -> None:
+    assert _frame(client)  # the robot's process publishes frames
     goal_set = store.create_goal_set(name="actor's", env_id=STANDIN)
     run = store.create_run(env_id=STANDIN, algorithm="vice_raq", config={}, goal_set_id=goal_set.id)
     assert store.claim_next_run(worker="robot host").id == run.id
@@ -184,8 +228,7 @@ def test_a_running_actor_on_the_same_robot_is_seen_through_its_published_frame(
     store.report_actor(run_id=run.id, state="waiting for a reset")
     time.sleep(0.25)  # past the last look-up of the store
     response = client.get("/api/cameras/frame", params={"env_id": STANDIN})
-    assert response.status_code == 503 and "has published no camera frame yet" in response.json()["detail"]
-    assert STANDIN not in cameras.open_env_ids()  # the camera is the actor's now
+    assert response.status_code == 409 and "has published no camera frame yet" in response.json()["detail"]
 
     published = np.zeros((300, 400, 3), np.uint8)
     published[100:200, 150:250] = (200, 30, 30)
@@ -196,21 +239,3 @@ def test_a_running_actor_on_the_same_robot_is_seen_through_its_published_frame(
     np.testing.assert_array_equal(_pixels(response.content), published)
     captured = client.post(f"/api/goal-sets/{goal_set.id}/capture", json={"env_id": STANDIN}).json()
     assert (captured["width"], captured["height"], captured["source"]) == (400, 300, "camera")
-    assert STANDIN not in cameras.open_env_ids()
-
-
-def test_a_camera_nobody_looks_at_is_closed_and_opens_again_when_asked() -> None:
-    source = CameraSource(idle_close_s=0.5)
-    try:
-        first = source.frame(STANDIN)
-        assert source.open_env_ids() == [STANDIN] and first.source == "camera"
-        assert source.frame(STANDIN) is first  # within 0.2 s: the same frame, the camera not read again
-        deadline = time.monotonic() + 10
-        while source.open_env_ids() and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert source.open_env_ids() == []
-        again = source.frame(STANDIN)
-        np.testing.assert_array_equal(again.pixels, first.pixels)  # read without reset: the arm did not move
-    finally:
-        source.close()
-    assert source.open_env_ids() == []

@@ -29,10 +29,13 @@ def wait_for_health(port: int, process: subprocess.Popen, timeout: float = 90) -
     raise AssertionError("no answer on /health")
 
 
-def start_raq_up(tmp_path: Path, *arguments: str) -> tuple[subprocess.Popen, int, IO[str]]:
+def start_raq_up(
+    tmp_path: Path, *arguments: str, settings: dict[str, str] | None = None
+) -> tuple[subprocess.Popen, int, IO[str]]:
     """`raq up` on a SQLite file in tmp_path, in a session of its own (as a terminal runs it); and its port and log."""
     port = free_port()
     env = {**os.environ, "RAQ_DATA_DIR": str(tmp_path), "RAQ_PORT": str(port), "PYTHONUNBUFFERED": "1"}
+    env.update(settings or {})
     env.pop("RAQ_DATABASE_URL", None)
     env.pop("DATABASE_URL", None)
     log = (tmp_path / "up.log").open("w")
@@ -64,6 +67,36 @@ def test_raq_up_serves_health_runs_a_learner_and_stops_cleanly(tmp_path: Path) -
     output = (tmp_path / "up.log").read_text()
     assert code == 0, output
     assert "web" in output and "learner" in output and "raq up: stopped" in output
+
+
+def test_raq_up_starts_the_robots_it_is_told_of_and_starts_one_again_after_a_crash(tmp_path: Path) -> None:
+    standin = "robot.standin:PusherStandIn-v0"
+    process, port, log = start_raq_up(tmp_path, settings={"RAQ_ROBOTS": standin, "MUJOCO_GL": "egl"})
+    store = Store(f"sqlite:///{tmp_path / 'raq.sqlite3'}")
+
+    def robot_up(other_than: str | None = None) -> str:
+        deadline = time.monotonic() + 90
+        while (row := store.robot_process_of(env_id=standin)) is None or row.holder == other_than:
+            assert time.monotonic() < deadline and process.poll() is None, (tmp_path / "up.log").read_text()
+            time.sleep(0.5)
+        return row.holder
+
+    try:
+        wait_for_health(port, process)
+        first = robot_up()
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/cameras/frame?env_id={standin}", timeout=30) as got:
+            assert got.status == 200 and got.headers["X-Camera-Source"].startswith("robot ")  # from its process
+        os.kill(int(first.split("@")[0]), signal.SIGKILL)
+        assert robot_up(other_than=first) != first  # started again
+    finally:
+        os.killpg(process.pid, signal.SIGINT)
+        code = process.wait(timeout=60)
+        log.close()
+    output = (tmp_path / "up.log").read_text()
+    assert code == 0, output
+    assert "robot-1 | robot robot.standin:PusherStandIn-v0: interrupted: the arm is held safe" in output
+    assert store.robot_process_of(env_id=standin) is None  # its row went with it
+    store.dispose()
 
 
 def server_workers(supervisor: int) -> list[int]:

@@ -226,7 +226,11 @@ def delete_goal_example(example_id: GoalExampleId, store: StoreDep, _auth: Write
 
 # ---------------------------------------------------------------- goals from the robot's camera
 CAMERA_ERRORS: dict[int | str, dict[str, Any]] = {
-    503: {"model": ErrorOut, "description": "The robot's camera could not be opened or gave no frame"}
+    409: {
+        "model": ErrorOut,
+        "description": "No robot process publishes the camera's frames (how to start one), or "
+        "it has published none yet",
+    }
 }
 NO_STORE = {"Cache-Control": "no-store"}
 CameraEnvId = Annotated[
@@ -265,8 +269,8 @@ def _not_a_camera(env_id: str, loc: list[str], settings: Settings) -> HTTPExcept
 def _camera_frame(env_id: str, store: Store) -> CameraFrame:
     try:
         return cameras.frame(env_id, store)
-    except CameraUnavailable as error:
-        raise HTTPException(status_code=503, detail=str(error)) from None
+    except CameraUnavailable as error:  # (the robot's state, not this server's: its process is not up)
+        raise HTTPException(status_code=409, detail=str(error)) from None
 
 
 def _set_camera_frame(goal_set: GoalSet, settings: Settings, store: Store) -> CameraFrame | None:
@@ -308,14 +312,18 @@ def _warnings(
 
 
 @router.get("/api/cameras", response_model=CamerasOut, tags=["cameras"])
-def list_cameras(settings: SettingsDep, _auth: ReadAuth) -> CamerasOut:
+def list_cameras(settings: SettingsDep, store: StoreDep, _auth: ReadAuth) -> CamerasOut:
     """The robot envs with a camera: the stand-in robot's and the allowed modules' (RAQ_ENV_MODULES) envs whose
-    class is a robot.base.RobotEnv with read_camera (told from the registry, without making the env)."""
-    return CamerasOut(
-        cameras=[
-            CameraOut(env_id=env_id, frame_url=frame_url(env_id)) for env_id in camera_env_ids(settings.env_modules)
-        ]
-    )
+    class is a robot.base.RobotEnv with read_camera (told from the registry, without making the env), each with the
+    robot's own process when one is up (only that process opens the camera)."""
+    listed = []
+    for env_id in camera_env_ids(settings.env_modules):
+        process = store.robot_process_of(env_id=env_id)
+        listed.append(CameraOut(
+            env_id=env_id, frame_url=frame_url(env_id), robot=None if process is None else process.robot,
+            robot_state=None if process is None else process.state,
+        ))  # fmt: skip
+    return CamerasOut(cameras=listed)
 
 
 @router.get(

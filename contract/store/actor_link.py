@@ -21,9 +21,11 @@ from typing import Any
 from sqlalchemy import delete, func, insert, select
 
 from contract.store.base import StoreBase, found
-from contract.store.models import ActorMessage, RobotControl, Run
+from contract.store.models import ActorMessage, RobotControl, Run, RunStatus
 from contract.store.robots import RobotStore
 
+LEARNER_LIVE_SECONDS = 1.0
+"""A learner whose keep-alive (every 0.25 s) is younger than this has its link open now (runs_awaiting_actor)."""
 TAKE_MAX = 256
 """The most actor messages one take_actor_messages returns."""
 
@@ -100,6 +102,23 @@ class ActorLinkStore(RobotStore, StoreBase):
         """`claim` is the run's current one; NotFound for an unknown run."""
         current = found(session.scalar(select(Run.claim).where(Run.id == run_id)), f"run {run_id}")
         return int(current) == int(claim)
+
+    def runs_awaiting_actor(self, *, env_id: str, run_id: int | None = None) -> list[int]:
+        """The active runs of `env_id` (or run `run_id` alone) whose learner has the link open now (not closed, a
+        keep-alive within LEARNER_LIVE_SECONDS), by id: the runs a robot process may drive."""
+        query = (
+            select(Run.id)
+            .join(RobotControl, RobotControl.run_id == Run.id)
+            .where(
+                Run.env_id == env_id, Run.status.in_(RunStatus.ACTIVE), RobotControl.learner_closed.is_(False),
+                RobotControl.learner_seen_at >= self._db_now(LEARNER_LIVE_SECONDS),
+            )
+            .order_by(Run.id)
+        )  # fmt: skip
+        if run_id is not None:
+            query = query.where(Run.id == run_id)
+        with self.reading() as session:
+            return [int(found_id) for found_id in session.scalars(query)]
 
     def announce_actor(self, *, run_id: int, spaces: dict[str, Any]) -> None:
         """The actor is up: its action and observation spaces and its control rate, as JSON."""

@@ -321,6 +321,25 @@ class RobotHold(Base):
     renewed_at: Mapped[datetime] = mapped_column(UTCDateTime)
 
 
+class RobotProcess(Base):
+    """A robot's own process (`raq robot ENV`): the one process that opens the robot's camera and moves its arm. It
+    stamps its row every second, publishes camera frames for the pages (often while one watches), and drives the
+    run that holds the robot. Times are the database's clock."""
+
+    __tablename__ = "robot_processes"
+
+    robot: Mapped[str] = mapped_column(String(300), primary_key=True)
+    env_id: Mapped[str] = mapped_column(String(300), index=True)
+    holder: Mapped[str] = mapped_column(String(300))
+    """The process ("pid@host")."""
+    state: Mapped[str] = mapped_column(String(100))
+    seen_at: Mapped[datetime] = mapped_column(UTCDateTime)
+    frame_png: Mapped[bytes | None] = deferred(mapped_column(LargeBinary))
+    frame_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    watched_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    """When a page last asked for a frame (the process then publishes one every FRAME_WATCHED_SECONDS)."""
+
+
 class ActorMessage(Base):
     """A remote actor's message to its learner (a step, an episode's first observation, a state), in id order;
     kept until a checkpoint of the run holds it (a learner that takes the run over trains on the later ones)."""

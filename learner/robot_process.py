@@ -1,0 +1,207 @@
+"""A robot's own process: the one process that opens the robot's camera and moves its arm (`raq robot ENV`, or
+`raq actor --run ID` for the runs of one run's robot only).
+
+It makes the robot's env once, which never moves the arm (robot/base.py), and then, until it is stopped:
+- stamps its row in the store every ROBOT_REPORT_SECONDS with what it does (contract/store/robot_processes.py);
+- while no run drives the robot, publishes the camera's frame for the pages: every FRAME_WATCHED_SECONDS while a
+  page watches, else every FRAME_IDLE_SECONDS. The web server shows these frames, previews them and captures goal
+  photos from them; it never opens the camera itself;
+- drives the run whose learner opens the link (learner/actor_link.py: the actor loop of learner/actor.py over a
+  `StoreLink`), sized for that run, for as long as that learner keeps it; the arm is held safe between learners.
+
+A learner of a robot env whose robot process is up links to it (learner/real_time.py); without one, the learner
+starts an actor beside itself, and the robot's row in `robot_holds` keeps the two from driving the arm at once.
+"""
+
+import contextlib
+import threading
+import time
+import traceback
+
+import gymnasium as gym
+import numpy as np
+
+from contract.checkpoint_location import ACTOR_POLICY_FILENAME, checkpoint_url, sibling
+from contract.config import TrainConfig
+from contract.envs import control_rate, encode_png
+from contract.store import RunStatus, Store, is_transient
+from contract.store.robot_holds import holder_name, robot_name
+from contract.store.robot_processes import (
+    FRAME_IDLE_SECONDS,
+    FRAME_WATCHED_SECONDS,
+    ROBOT_REPORT_SECONDS,
+    RobotProcessStatus,
+)
+from learner.actor import ActorLoop, ActorSettings, ActorState, open_env
+from learner.actor_link import StoreLink
+from learner.actor_messages import Failure
+from robot.base import RobotEnv
+
+IDLE_SECONDS = 0.1
+"""How often an idle robot process looks for a learner and for a page watching."""
+WAITING_FOR_LEARNER = "waiting for a learner"
+"""A robot process's state between learners (the arm held safe)."""
+
+
+def driving(run_id: int) -> str:
+    """A robot process's state while it drives a run's robot."""
+    return f"driving run {run_id}"
+
+
+class RobotProcess:
+    """The robot's camera and arm, and which run drives them."""
+
+    def __init__(self, store: Store, *, env_id: str, checkpoint_base: str, only_run: int | None = None) -> None:
+        """`only_run`: drive that run only, and end when it ends (`raq actor --run ID`)."""
+        self.store, self.env_id, self.checkpoint_base, self.only_run = store, env_id, checkpoint_base, only_run
+        self.robot, self.holder = robot_name(env_id), holder_name()
+        self.state = "opening the robot"
+        self.stop = threading.Event()
+        self.frame_at = -np.inf
+        self.env: gym.Env | None = None
+        self.sizes: tuple[int, int] | None = None  # (image_size, display_size) of the env as made
+        self.status: RobotProcessStatus | None = None  # the row as last written (whether a page watches)
+        self.ended_links: dict[int, object] = {}  # run id: its learner's last keep-alive when its actor ended
+        self.reporter = threading.Thread(target=self._report, name="robot-report", daemon=True)
+
+    @property
+    def has_camera(self) -> bool:
+        return self.env is not None and isinstance(self.env.unwrapped, RobotEnv)
+
+    def serve(self) -> str:
+        """Serve until stopped, or until the one run it serves ends. Returns why it ended."""
+        self.reporter.start()
+        try:
+            if self.only_run is not None:
+                self._sized_for(self._run_config(self.only_run))
+            else:
+                self.env = open_env(TrainConfig(env_id=self.env_id))  # (the env's own default sizes)
+                self.sizes = None
+            self.state = WAITING_FOR_LEARNER
+            while not self.stop.is_set():
+                run_id = self._learner_waiting()
+                if isinstance(run_id, str):
+                    return run_id
+                if run_id is not None:
+                    self._drive(run_id)
+                    continue
+                self._publish_frame()
+                self.stop.wait(IDLE_SECONDS)
+            return "stopped"
+        finally:
+            self.stop.set()
+            self.reporter.join(timeout=2 * ROBOT_REPORT_SECONDS)
+            if self.env is not None:
+                with contextlib.suppress(Exception):
+                    self.env.unwrapped.stop()  # type: ignore[attr-defined]
+                self.env.close()
+            with contextlib.suppress(Exception):
+                self.store.robot_process_ended(robot=self.robot, holder=self.holder)
+
+    # ------------------------------------------------------------------ between runs
+    def _learner_waiting(self) -> int | str | None:
+        """The run whose learner has the link open (lowest id), None, or why to end (`only_run` ended)."""
+        try:
+            if self.only_run is not None:
+                run = self.store.get_run(run_id=self.only_run)
+                if run.status not in RunStatus.LIVE:
+                    return f"run {run.status}"
+                waiting = self.store.runs_awaiting_actor(env_id=self.env_id, run_id=self.only_run)
+            else:
+                waiting = self.store.runs_awaiting_actor(env_id=self.env_id)
+            for run_id in waiting:  # (a link whose learner's last keep-alive was before its actor ended is over)
+                if self.store.actor_link(run_id=run_id).learner_seen_at != self.ended_links.get(run_id):
+                    return run_id
+        except Exception as error:  # the store away: keep waiting (the arm is held)
+            if not is_transient(error):
+                raise
+        return None
+
+    def _publish_frame(self) -> None:
+        """The camera's frame for the pages: often while one watches, else now and then."""
+        if not self.has_camera:
+            return
+        now = time.monotonic()
+        watched = self.status is not None and self.status.watched
+        if now - self.frame_at < (FRAME_WATCHED_SECONDS if watched else FRAME_IDLE_SECONDS):
+            return
+        self.frame_at = now
+        try:
+            pixels = np.ascontiguousarray(self.env.unwrapped.read_camera(), dtype=np.uint8)  # type: ignore[union-attr]
+            self.status = self.store.report_robot_process(
+                robot=self.robot, env_id=self.env_id, holder=self.holder, state=self.state,
+                frame_png=encode_png(pixels),
+            )  # fmt: skip
+        except Exception as error:  # the store away, or the camera gave nothing this time: the next try
+            if not is_transient(error):
+                print(f"robot {self.robot}: no camera frame: {type(error).__name__}: {error}", flush=True)
+
+    def _report(self) -> None:
+        """Stamp the robot's row every ROBOT_REPORT_SECONDS, whatever the main thread is doing."""
+        while not self.stop.is_set():
+            with contextlib.suppress(Exception):
+                self.status = self.store.report_robot_process(
+                    robot=self.robot, env_id=self.env_id, holder=self.holder, state=self.state
+                )
+            self.stop.wait(ROBOT_REPORT_SECONDS)
+
+    # ------------------------------------------------------------------ a run
+    def _run_config(self, run_id: int) -> TrainConfig:
+        run = self.store.get_run(run_id=run_id)
+        return TrainConfig.from_dict({**run.config_values(), "device": "cpu", "precision": "fp32"})
+
+    def _sized_for(self, config: TrainConfig) -> None:
+        """The env at the run's observation and display sizes: a robot's view is set; another env is made anew
+        (it moves no arm)."""
+        sizes = (config.image_size, config.display_size)
+        if self.env is not None and isinstance(self.env.unwrapped, RobotEnv):
+            self.env.unwrapped.set_view(image_size=config.image_size, display_size=config.display_size)
+        elif self.env is None or self.sizes != sizes:
+            if self.env is not None:
+                self.env.close()
+                self.env = None
+            self.env = open_env(config)
+        self.sizes = sizes
+
+    def _drive(self, run_id: int) -> None:
+        """Drive the run for its learner until that learner closes the link or is gone (the arm held safe)."""
+        config = self._run_config(run_id)
+        hz = control_rate(config.env_id, config.control_hz)
+        if hz <= 0:
+            raise ValueError(f"{config.env_id} is not a robot env: give the run a control_hz to drive it in real time")
+        self._sized_for(config)
+        settings = ActorSettings(
+            config.to_dict(), run_id=run_id, database_url=self.store.url, control_hz=hz,
+            person_reset=config.reset_every_episode,
+        )  # fmt: skip
+        policy_url = sibling(checkpoint_url(self.checkpoint_base, run_id), ACTOR_POLICY_FILENAME)
+        self.state = driving(run_id)
+        print(f"robot {self.robot}: driving run {run_id} for its learner", flush=True)
+        link = StoreLink(self.store, run_id=run_id, policy_url=policy_url, hz=hz)
+        actor = ActorLoop(settings, link.connection, link.outbox, env=self.env)
+        try:
+            actor.run()
+        except Exception:  # the robot's own error: the run fails with it, and this process holds the arm and waits
+            link.outbox.put(Failure(traceback.format_exc()))
+            print(f"robot {self.robot}: run {run_id}'s actor failed:\n{traceback.format_exc()}", flush=True)
+            with contextlib.suppress(Exception):
+                self.env.unwrapped.stop()  # type: ignore[union-attr]
+        finally:
+            link.close()
+            self.ended_links[run_id] = link.learner_seen_at
+            self.state = WAITING_FOR_LEARNER
+            if actor.exit_reason == ActorState.CLOSED:  # (the run's page: its learner let the robot go)
+                with contextlib.suppress(Exception):
+                    self.store.report_actor(run_id=run_id, state=ActorState.CLOSED)
+        print(f"robot {self.robot}: run {run_id}'s actor ended ({actor.state}); {WAITING_FOR_LEARNER}", flush=True)
+
+
+def serve_robot(
+    store: Store, *, env_id: str, checkpoint_base: str, only_run: int | None = None,
+    stop: threading.Event | None = None,
+) -> str:  # fmt: skip
+    """Run the robot's process (see the module) until `stop` is set, Ctrl-C, or `only_run` ends; why it ended."""
+    process = RobotProcess(store, env_id=env_id, checkpoint_base=checkpoint_base, only_run=only_run)
+    if stop is not None:
+        threading.Thread(target=lambda: (stop.wait(), process.stop.set()), daemon=True).start()
+    return process.serve()
