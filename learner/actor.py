@@ -133,6 +133,9 @@ class Controls:
     """The Evaluate now round of the episode under way (None: a training episode)."""
     last_answer: float = field(default_factory=time.monotonic)
     """When the store last answered (monotonic)."""
+    back_at: float = 0.0
+    """When the store last answered after a silence longer than the watchdog time (monotonic): it was away, and the
+    learner's keep-alives could not cross it either."""
     asked_after: float = 0.0
     """Only answers to reports sent after this moment (monotonic) set the controls: one sent before the actor marked
     the robot stopped itself may still say "not stopped"."""
@@ -231,8 +234,10 @@ class ActorLoop:
             except Exception:  # the store is unreachable: the watchdog counts from the last answer
                 pass
             else:
-                controls = self.controls
-                controls.last_answer = time.monotonic()
+                controls, answered = self.controls, time.monotonic()
+                if answered - controls.last_answer > float(self.config.watchdog_seconds):
+                    controls.back_at = answered
+                controls.last_answer = answered
                 if asked >= controls.asked_after:
                     controls.stop_requested, controls.reset_count = status.stop_requested, status.reset_count
                     controls.evaluation_pending = status.evaluation_pending
@@ -269,8 +274,10 @@ class ActorLoop:
             self.store_away = True
             return ActorState.DATABASE_GONE
         # the learner's keep-alives cross the same store: they count while it answers, and again from its return
+        # (seen here, or by the control thread while this thread waited on the store itself)
         if self.store_away:
             self.store_away, self.last_keepalive = False, max(self.last_keepalive, now)
+        self.last_keepalive = max(self.last_keepalive, self.controls.back_at)
         if self.controls.last_answer - self.last_keepalive > limit:
             self._read_learner()  # (keep-alives may be waiting unread after a long reset)
             if self.exit_reason is not None or self.controls.last_answer - self.last_keepalive > limit:

@@ -2,6 +2,7 @@
 the person to reset the scene, and Ready starts the episode. Stop then Resume while the card waits returns the actor
 to waiting for the reset, and the API (which the page reads) says so."""
 
+import sqlite3
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -77,6 +78,64 @@ def test_the_arm_goes_home_before_the_person_is_asked_and_stop_resume_returns_to
         wait_for(lambda: state() == ActorState.ACTING, "the actor acting")
         assert events("reset", after=ready) == [] and len(homed_again) <= 1
         assert events("action")[0] > ready
+    finally:
+        actor.close()
+        get_settings.cache_clear()
+
+
+def test_a_database_lock_while_the_actor_waits_on_it_between_episodes_does_not_read_as_a_dead_learner(
+    store: Store, client: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The database's writes locked (another connection's exclusive transaction) just as an episode ends: the actor
+    waits on the store in its own loop, asking for the reset, as long as the lock lasts, and the learner's
+    keep-alives are held up with it. Once it is back, the learner is not taken for dead: the actor lives on, and
+    the next Ready starts an episode."""
+    log = tmp_path / "arm.log"
+    monkeypatch.setenv(LOG_VARIABLE, str(log))
+    monkeypatch.setenv("RAQ_ENV_MODULES", "learner.testing_envs,recording_arm")
+    get_settings.cache_clear()
+    config = real_time_config(env_id=ENV_ID, control_hz=HZ, reset_every_episode=True, episode_steps=5)
+    run_id = create_run(store, add_dot_goals(store), config)
+    limit = config.watchdog_seconds
+
+    def actions(after: float = 0.0) -> list[float]:
+        return [at for kind, at in recorded(log) if kind == "action" and at > after]
+
+    def pump(seconds: float) -> None:
+        """The learner's part for a while: the actor's messages are taken."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            actor.next_message(0.02)
+
+    def wait_for(condition: Callable[[], bool], what: str, seconds: float = 30.0) -> None:
+        deadline = time.monotonic() + seconds
+        while not condition():
+            assert time.monotonic() < deadline, f"waited {seconds:g} s for {what}"
+            pump(0.02)
+
+    settings = ActorSettings(config.to_dict(), run_id=run_id, database_url=store.url, control_hz=HZ, person_reset=True)
+    claim = store.run_claim(run_id=run_id)
+    actor = ActorProcess(store, settings, claim=claim, checkpoint_file=str(tmp_path / "run.pt"))
+    try:
+        actor.start(0, claim)
+        wait_for(lambda: store.robot_status(run_id=run_id).reset_needed, "the reset card")
+        store.scene_ready(run_id=run_id)
+        wait_for(lambda: bool(actions()), "the episode's first action")
+        database = sqlite3.connect(store.url.removeprefix("sqlite:///"), timeout=30)
+        try:
+            database.execute("BEGIN EXCLUSIVE")  # the episode ends within the lock: its reset waits on it
+            pump(3 * limit)
+        finally:
+            database.rollback()
+            database.close()
+        unlocked = time.monotonic()
+        pump(limit + 1.0)
+        assert actor.process.is_alive(), "the actor took the learner for dead"
+        assert store.robot_status(run_id=run_id).actor_state != ActorState.LEARNER_GONE
+        wait_for(lambda: store.robot_status(run_id=run_id).reset_needed, "the reset card again")
+        store.resume_robot(run_id=run_id)  # (had the actor held the arm for the store's silence)
+        store.scene_ready(run_id=run_id)
+        wait_for(lambda: bool(actions(after=unlocked)), "an action after the lock")
     finally:
         actor.close()
         get_settings.cache_clear()
