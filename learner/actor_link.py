@@ -351,8 +351,8 @@ class RemoteActor:
                 return None
             time.sleep(min(remaining, LINK_POLL_SECONDS / 2))
         self.taken, message = self.buffer.popleft()
-        if isinstance(message, Failure):
-            raise ActorError(f"the actor failed:\n{message.traceback}")
+        if isinstance(message, Failure):  # (its own error on the first line: the run's reason)
+            raise ActorError(f"the actor failed: {message.traceback.strip().splitlines()[-1]}\n{message.traceback}")
         if isinstance(message, EpisodeStart | Transition):
             self.display = message.display
         return message

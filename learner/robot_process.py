@@ -33,7 +33,7 @@ from contract.store.robot_processes import (
     RobotProcessStatus,
 )
 from learner.actor import ActorLoop, ActorSettings, ActorState, open_env
-from learner.actor_link import StoreLink
+from learner.actor_link import StoreLink, encode_message
 from learner.actor_messages import Failure
 from robot.base import RobotEnv
 
@@ -62,6 +62,7 @@ class RobotProcess:
         self.sizes: tuple[int, int] | None = None  # (image_size, display_size) of the env as made
         self.status: RobotProcessStatus | None = None  # the row as last written (whether a page watches)
         self.ended_links: dict[int, object] = {}  # run id: its learner's last keep-alive when its actor ended
+        self.failed_claims: dict[int, int] = {}  # run id: the claim its actor failed at
         self.reporter = threading.Thread(target=self._report, name="robot-report", daemon=True)
 
     @property
@@ -110,6 +111,8 @@ class RobotProcess:
             else:
                 waiting = self.store.runs_awaiting_actor(env_id=self.env_id)
             for run_id in waiting:  # (a link whose learner's last keep-alive was before its actor ended is over)
+                if run_id in self.failed_claims and self.store.run_claim(run_id=run_id) == self.failed_claims[run_id]:
+                    continue
                 if self.store.actor_link(run_id=run_id).learner_seen_at != self.ended_links.get(run_id):
                     return run_id
         except Exception as error:  # the store away: keep waiting (the arm is held)
@@ -164,36 +167,50 @@ class RobotProcess:
         self.sizes = sizes
 
     def _drive(self, run_id: int) -> None:
-        """Drive the run for its learner until that learner closes the link or is gone (the arm held safe)."""
-        config = self._run_config(run_id)
-        hz = control_rate(config.env_id, config.control_hz)
-        if hz <= 0:
-            raise ValueError(f"{config.env_id} is not a robot env: give the run a control_hz to drive it in real time")
-        self._sized_for(config)
-        settings = ActorSettings(
-            config.to_dict(), run_id=run_id, database_url=self.store.url, control_hz=hz,
-            person_reset=config.reset_every_episode,
-        )  # fmt: skip
-        policy_url = sibling(checkpoint_url(self.checkpoint_base, run_id), ACTOR_POLICY_FILENAME)
+        """Drive the run for its learner until that learner closes the link or is gone (the arm held safe). An error
+        of the robot's (or of the run's settings) fails the run with it; this process holds the arm and goes on."""
         self.state = driving(run_id)
-        print(f"robot {self.robot}: driving run {run_id} for its learner", flush=True)
-        link = StoreLink(self.store, run_id=run_id, policy_url=policy_url, hz=hz)
-        actor = ActorLoop(settings, link.connection, link.outbox, env=self.env)
+        link: StoreLink | None = None
+        actor: ActorLoop | None = None
         try:
+            config = self._run_config(run_id)
+            hz = control_rate(config.env_id, config.control_hz)
+            if hz <= 0:
+                raise ValueError(
+                    f"{config.env_id} is not a robot env: give the run a control_hz to drive it in real time"
+                )
+            self._sized_for(config)
+            settings = ActorSettings(
+                config.to_dict(), run_id=run_id, database_url=self.store.url, control_hz=hz,
+                person_reset=config.reset_every_episode,
+            )  # fmt: skip
+            policy_url = sibling(checkpoint_url(self.checkpoint_base, run_id), ACTOR_POLICY_FILENAME)
+            print(f"robot {self.robot}: driving run {run_id} for its learner", flush=True)
+            link = StoreLink(self.store, run_id=run_id, policy_url=policy_url, hz=hz)
+            actor = ActorLoop(settings, link.connection, link.outbox, env=self.env)
             actor.run()
-        except Exception:  # the robot's own error: the run fails with it, and this process holds the arm and waits
-            link.outbox.put(Failure(traceback.format_exc()))
-            print(f"robot {self.robot}: run {run_id}'s actor failed:\n{traceback.format_exc()}", flush=True)
+        except Exception:
+            failure = Failure(traceback.format_exc())
+            with contextlib.suppress(Exception):  # (not driven again at this claim: its learner fails the run)
+                self.failed_claims[run_id] = self.store.run_claim(run_id=run_id)
+            print(f"robot {self.robot}: run {run_id}'s actor failed:\n{failure.traceback}", flush=True)
             with contextlib.suppress(Exception):
                 self.env.unwrapped.stop()  # type: ignore[union-attr]
+            with contextlib.suppress(Exception):  # (after the steps posted before it)
+                if link is not None:
+                    link.outbox.put(failure)
+                else:
+                    self.store.post_actor_messages(run_id=run_id, messages=[encode_message(failure)])
         finally:
-            link.close()
-            self.ended_links[run_id] = link.learner_seen_at
+            if link is not None:
+                link.close()
+                self.ended_links[run_id] = link.learner_seen_at
             self.state = WAITING_FOR_LEARNER
-            if actor.exit_reason == ActorState.CLOSED:  # (the run's page: its learner let the robot go)
-                with contextlib.suppress(Exception):
-                    self.store.report_actor(run_id=run_id, state=ActorState.CLOSED)
-        print(f"robot {self.robot}: run {run_id}'s actor ended ({actor.state}); {WAITING_FOR_LEARNER}", flush=True)
+        if actor is not None and actor.exit_reason == ActorState.CLOSED:  # (the run's card: its learner let go)
+            with contextlib.suppress(Exception):
+                self.store.report_actor(run_id=run_id, state=ActorState.CLOSED)
+        ended = "failed" if actor is None else actor.state
+        print(f"robot {self.robot}: run {run_id}'s actor ended ({ended}); {WAITING_FOR_LEARNER}", flush=True)
 
 
 def serve_robot(

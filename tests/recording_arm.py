@@ -7,7 +7,7 @@ was held, and by which process (Linux's monotonic clock is the same in every pro
 what `limit_action` was told. `make("recording_arm:RecordingArm-v0")` with RAQ_ENV_MODULES listing
 `recording_arm` and this folder on the path. `LateArm-v0` is the same arm whose every LATE_EVERY-th action takes
 1.3 control periods to send; `ExclusiveArm-v0` one whose camera opens in one process at a time (robot.base's
-CameraBusy for a second), as most USB cameras do.
+CameraBusy for a second), as most USB cameras do; `JammingArm-v0` one whose JAM_AT-th action raises.
 """
 
 import os
@@ -26,7 +26,9 @@ LOG_VARIABLE = "RECORDING_ARM_LOG"
 ENV_ID = "recording_arm:RecordingArm-v0"
 LATE_ENV_ID = "recording_arm:LateArm-v0"
 EXCLUSIVE_ENV_ID = "recording_arm:ExclusiveArm-v0"
+JAMMING_ENV_ID = "recording_arm:JammingArm-v0"
 LATE_EVERY = 5
+JAM_AT = 20
 
 
 class RecordingArm(RobotEnv):
@@ -91,6 +93,20 @@ class ExclusiveArm(RecordingArm):
             self.camera.close()
 
 
+class JammingArm(RecordingArm):
+    """The recording arm whose gripper jams at its JAM_AT-th action (send_action raises)."""
+
+    def __init__(self, **kwargs: object) -> None:
+        super().__init__(**kwargs)  # type: ignore[arg-type]
+        self.sent = 0
+
+    def send_action(self, action: np.ndarray) -> None:
+        self.sent += 1
+        if self.sent == JAM_AT:
+            raise RuntimeError("the gripper jammed")
+        super().send_action(action)
+
+
 def recorded(log: Path) -> list[tuple[str, float]]:
     """The log's events in order: (what, monotonic time)."""
     return [(what, at) for what, at, _ in recorded_by(log)]
@@ -100,3 +116,4 @@ if "RecordingArm-v0" not in gym.registry:
     gym.register(id="RecordingArm-v0", entry_point="recording_arm:RecordingArm", max_episode_steps=1000)
     gym.register(id="LateArm-v0", entry_point="recording_arm:LateArm", max_episode_steps=1000)
     gym.register(id="ExclusiveArm-v0", entry_point="recording_arm:ExclusiveArm", max_episode_steps=1000)
+    gym.register(id="JammingArm-v0", entry_point="recording_arm:JammingArm", max_episode_steps=1000)
