@@ -67,6 +67,17 @@ ACTOR_LIVE_SECONDS = 5.0
 """An actor that reported within this many seconds is up."""
 
 
+def driving(run_id: int) -> str:
+    """A robot's process's state while it drives a run's robot."""
+    return f"driving run {run_id}"
+
+
+def driven_run(state: str) -> int | None:
+    """The run a robot's process drives, from its state (`driving`); None: none."""
+    prefix, _, number = state.partition(driving(0)[:-1])
+    return int(number) if not prefix and number.isdigit() else None
+
+
 # ====================================================================== messages as rows
 def encode_message(message: Any) -> tuple[str, dict[str, Any], bytes | None, bytes | None]:
     """One of the actor's messages (learner/actor_messages.py) as a row: its kind, its fields as JSON, and up to
@@ -292,13 +303,22 @@ class RemoteActor:
 
     def _wait_for_actor(self, heartbeat: Any) -> None:
         """Until the robot's process has announced itself for this run and reported lately (ActorError after
-        ACTOR_WAIT_SECONDS)."""
+        ACTOR_WAIT_SECONDS without one, not counting the time the robot's process drives another run: the run's
+        events say which)."""
         deadline = time.monotonic() + ACTOR_WAIT_SECONDS
+        env_id, busy_with = self.store.get_run(run_id=self.run_id).env_id, None
         while True:
             link = self.store.actor_link(run_id=self.run_id)
             alive = link.actor_age_seconds is not None and link.actor_age_seconds < ACTOR_LIVE_SECONDS
             if link.actor_spaces is not None and alive:
                 return
+            robot = self.store.robot_process_of(env_id=env_id)
+            other = None if robot is None else driven_run(robot.state)
+            if robot is not None and other not in (None, self.run_id):  # the robot is up, and busy
+                deadline = time.monotonic() + ACTOR_WAIT_SECONDS
+                if other != busy_with:
+                    busy_with = other
+                    self.store.record_event(run_id=self.run_id, message=f"waiting for {robot.robot}: {robot.state}")
             if time.monotonic() > deadline:
                 raise ActorError(
                     f"no actor for run {self.run_id} within {ACTOR_WAIT_SECONDS:.0f} s: start `raq robot ENV_ID` (or "

@@ -33,7 +33,7 @@ from contract.store.robot_processes import (
     RobotProcessStatus,
 )
 from learner.actor import ActorLoop, ActorSettings, ActorState, open_env
-from learner.actor_link import StoreLink, encode_message
+from learner.actor_link import StoreLink, driving, encode_message
 from learner.actor_messages import Failure
 from robot.base import RobotEnv
 
@@ -41,11 +41,6 @@ IDLE_SECONDS = 0.1
 """How often an idle robot process looks for a learner and for a page watching."""
 WAITING_FOR_LEARNER = "waiting for a learner"
 """A robot process's state between learners (the arm held safe)."""
-
-
-def driving(run_id: int) -> str:
-    """A robot process's state while it drives a run's robot."""
-    return f"driving run {run_id}"
 
 
 class RobotProcess:

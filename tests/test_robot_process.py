@@ -70,3 +70,28 @@ def test_the_robots_process_serves_runs_of_another_image_size_and_the_learner_ne
     opened = [pid for what, _, pid in recorded_by(arm_log) if what == "open"]
     movers = {pid for what, _, pid in recorded_by(arm_log) if what in ("action", "reset", "hold")}
     assert len(movers) == 1 and set(opened) <= movers  # one process; the learner (this one's threads aside) none
+
+
+def test_a_second_run_of_the_robot_waits_for_it_while_the_first_is_driven_and_then_gets_it(
+    dot_reach: tuple[Settings, Store, int], arm_log: Path
+) -> None:
+    from learner.worker import work  # noqa: PLC0415 - the learner's tests only
+
+    settings, store, goal_set_id = dot_reach
+    config = real_time_config(env_id=ENV_ID, total_steps=150, reset_every_episode=False)
+    with robot_serving(store, ENV_ID, settings.checkpoint_dir):
+        first = create_run(store, goal_set_id, config)
+        second = create_run(store, goal_set_id, config)
+        other = threading.Thread(target=work, args=(settings,), kwargs={"worker_name": "second", "once": True})
+        other.start()  # (it takes one run; the learner below the other)
+        try:
+            assert learn_once_beside(settings, lambda stop: stop.wait()) == 0
+        finally:
+            other.join(timeout=300)
+        runs = [store.get_run(run_id=run_id) for run_id in (first, second)]
+        assert [run.status for run in runs] == [RunStatus.FINISHED] * 2, [run.status_reason for run in runs]
+        waited = [run for run in runs if any("waiting for" in event.message for event in store.events(run_id=run.id))]
+        assert len(waited) == 1  # the later of the two, told which run had the robot
+        driven = {run.id for run in runs} - {waited[0].id}
+        message = next(event.message for event in store.events(run_id=waited[0].id) if "waiting for" in event.message)
+        assert message.endswith(f"driving run {driven.pop()}"), message
