@@ -259,6 +259,9 @@ class ActorLoop:
                 self._load_policy(message.modules)
             elif isinstance(message, Start):
                 self.step, self.claim, self.started = int(message.step), int(message.claim), True
+                if self.step:  # a run taken over: its random actions go on from here, not again from the first
+                    self.generator.manual_seed(self.config.seed * 1_000_003 + self.step)
+                    self.rng = np.random.default_rng([self.config.seed, 1, self.step])
             elif isinstance(message, Close):
                 self.exit_reason = ActorState.CLOSED
             self.last_keepalive = time.monotonic()
