@@ -67,6 +67,11 @@ ACTOR_LIVE_SECONDS = 5.0
 """An actor that reported within this many seconds is up."""
 
 
+def raised(traceback_text: str) -> str:
+    """What a formatted traceback says was raised: its last line ("RuntimeError: the gripper jammed")."""
+    return traceback_text.strip().splitlines()[-1]
+
+
 def driving(run_id: int) -> str:
     """A robot's process's state while it drives a run's robot."""
     return f"driving run {run_id}"
@@ -372,7 +377,7 @@ class RemoteActor:
             time.sleep(min(remaining, LINK_POLL_SECONDS / 2))
         self.taken, message = self.buffer.popleft()
         if isinstance(message, Failure):  # (its own error on the first line: the run's reason)
-            raise ActorError(f"the actor failed: {message.traceback.strip().splitlines()[-1]}\n{message.traceback}")
+            raise ActorError(f"the actor failed: {raised(message.traceback)}\n{message.traceback}")
         if isinstance(message, EpisodeStart | Transition):
             self.display = message.display
         return message
@@ -445,7 +450,7 @@ class ActorProcess(RemoteActor):
         finally:
             started.close()
         if failure is not None:
-            raise ActorError(f"the actor failed to start: {failure.strip().splitlines()[-1]}")
+            raise ActorError(f"the actor failed to start: {raised(failure)}")
 
     def next_message(self, timeout: float) -> ActorMessage | None:
         """The actor's next message within `timeout` seconds, or None; ActorError for its failure or its end."""
