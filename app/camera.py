@@ -25,7 +25,7 @@ from PIL import Image
 from contract.envs import SIM_ENV_IDS, env_class, module_env_ids
 from contract.images import VIEWPOINT_SIMILARITY, model_view, viewpoint_similarity
 from contract.store import NotFound, Store
-from robot.base import RobotEnv
+from robot.base import is_robot
 
 PROJECT_ROBOT_MODULES = ("robot.standin",)
 """The project's own robots offered everywhere (robot.template is a file to copy, not a robot)."""
@@ -73,11 +73,6 @@ class CameraFrame:
 
 
 # ---------------------------------------------------------------- which envs have a camera
-def has_camera(cls: type | None) -> bool:
-    """A RobotEnv subclass that implements read_camera."""
-    return isinstance(cls, type) and issubclass(cls, RobotEnv) and cls.read_camera is not RobotEnv.read_camera
-
-
 @lru_cache(maxsize=8)
 def _camera_env_ids(modules: tuple[str, ...]) -> tuple[str, ...]:
     candidates = list(SIM_ENV_IDS)
@@ -89,7 +84,7 @@ def _camera_env_ids(modules: tuple[str, ...]) -> tuple[str, ...]:
     found = []
     for env_id in candidates:
         try:
-            if has_camera(env_class(env_id)):
+            if is_robot(env_class(env_id)):
                 found.append(env_id)
         except Exception:  # noqa: BLE001, S112 - an entry point that does not import is no camera either
             continue

@@ -14,11 +14,12 @@ from functools import lru_cache
 import numpy as np
 from PIL import Image
 
-from app.camera import CameraUnavailable, cameras, has_camera
-from contract.envs import BadObservation, encode_png, env_class, env_id_problem, first_frames, module_env_ids
+from app.camera import CameraUnavailable, cameras
+from contract.envs import BadObservation, encode_png, env_id_problem, first_frames, module_env_ids
 from contract.images import model_view
 from contract.settings import Settings
 from contract.store import Store
+from robot.base import RobotNotArmed, robot_class
 
 PREVIEW_SIZES = (16, 24, 32, 40, 48, 56, 64, 72, 80, 84, 96, 112, 128, 160, 192, 224, 256)
 """The model image sizes a preview is made at: a bounded set, so that callers cannot make the server build and keep
@@ -84,7 +85,8 @@ def preview_frames(env_id: str, size: int, settings: Settings, store: Store) -> 
         return problem
     if is_robot(env_id):
         return robot_preview(env_id, preview_size(size), store)
-    return _preview_of_env(env_id, size)
+    frames = _preview_of_env(env_id, size)
+    return robot_preview(env_id, preview_size(size), store) if is_robot(env_id) else frames
 
 
 def preview_problem(env_id: str, size: int, settings: Settings) -> str | None:
@@ -95,13 +97,18 @@ def preview_problem(env_id: str, size: int, settings: Settings) -> str | None:
     if problem or is_robot(env_id):
         return problem
     frames = _preview_of_env(env_id, size)
-    return frames if isinstance(frames, str) else None
+    return frames if isinstance(frames, str) and not is_robot(env_id) else None
+
+
+_made_robots: set[str] = set()
+"""Env ids whose registration could not tell (a factory function) and whose env, once made, was a robot."""
 
 
 def is_robot(env_id: str) -> bool:
-    """An allowed env id whose class is a robot with a camera (robot.base.RobotEnv): never made for a preview."""
+    """An allowed env id of a robot (robot.base.robot_class): never made for a preview when its registration says
+    so; one registered by a factory function is made once, and its guard refuses the preview's reset."""
     try:
-        return has_camera(env_class(env_id))
+        return bool(robot_class(env_id)) or env_id in _made_robots
     except Exception:  # noqa: BLE001 - a class that cannot be read is answered by making the env (its error)
         return False
 
@@ -129,6 +136,9 @@ def _preview_of_env(env_id: str, size: int) -> tuple[bytes, bytes, str] | str:
     """An env's first frames after reset (made once a size, kept), or why it cannot be made or reset."""
     try:
         return _first_frames.get(env_id, preview_size(size))
+    except RobotNotArmed as error:  # (a robot after all: its arm refused to move, and it is never made again)
+        _made_robots.add(env_id)
+        return str(error)
     except BadObservation as error:
         return str(error)[:500]
     except Exception as error:  # noqa: BLE001 - any failure of the env itself is the user's answer, not a 500

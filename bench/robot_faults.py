@@ -8,19 +8,24 @@ presses Ready, through, in turn:
 2. SIGKILL of the driving learner, three times, a new learner started after each (as `raq up` restarts one);
 3. the database's writes locked for LOCK_SECONDS (another connection holds an exclusive SQLite transaction), the
    arm held meanwhile and resumed by the person after it;
-4. the New run form's preview and the Camera panel of a second `raq serve`, while the run acts.
+4. the New run form's preview and the Camera panel of a second `raq serve`, while the run acts;
+5. Stop robot, then the driving learner SIGSTOPped LEARNER_PAUSE_SECONDS (past the actor's watchdog) and
+   SIGCONTed: nothing may move the arm until the person presses Resume, PAUSE_WATCH_SECONDS later;
+6. a second `raq robot` for the robot on another host name (it must refuse to start);
+7. SIGSTOP of the robot's own process until its row is stale, a new `raq robot` on another host name taking the
+   robot over, then SIGCONT: the paused one must let go without touching the arm (with --actor robot).
 
     python bench/robot_faults.py                  # the robot's own process (`raq robot ENV_ID`) drives every run
-    python bench/robot_faults.py --actor beside   # no robot process: each learner starts an actor beside it
     python bench/robot_faults.py --actor remote   # the run has remote_actor and one `raq actor --run ID` drives it
 
 It prints, from the log: the most processes that sent actions within any one control period (one driver: 1), the
 shortest interval between two actions, the robot steps lost at the takeovers (the actions the arm took before the
 new learner's actor moved it, less the step the run resumed at and the steps lost before: steps no replay got), the
-processes of a killed learner (its actor beside it included) still alive STRAY_AFTER_SECONDS later, and the arm
+processes of a killed learner still alive STRAY_AFTER_SECONDS later, and the arm
 moves made by others: a move by a process that never drove the arm (a server), or an action by a driver after a
-later driver's first; and the processes other than a driver that opened the robot's camera. Writes
-<out>/figures.json.
+later driver's first; the processes other than a driver that opened the robot's camera; the moves after a Stop
+nobody resumed (fault 5); and the moves or holds by a process without the hold (the refused robot process of fault
+6, the paused one of fault 7 once continued). Writes <out>/figures.json.
 """
 
 import argparse
@@ -44,7 +49,7 @@ sys.path.insert(0, str(ROOT))
 from app.migrate import upgrade  # noqa: E402
 from bench.learn import free_port, wait_for_health  # noqa: E402
 from bench.logged_standin import ENV_ID, LOG_VARIABLE, MOVES, calls  # noqa: E402
-from bench.processes import stop_all  # noqa: E402
+from bench.processes import on_host, stop_all  # noqa: E402
 from bench.robot_standin import add_camera_goal_set, request, resetter  # noqa: E402
 from contract.config import TrainConfig  # noqa: E402
 from contract.store import RunStatus, Store  # noqa: E402
@@ -60,7 +65,11 @@ STRAY_AFTER_SECONDS = 15.0
 """A killed learner's process still alive this long after the kill is a stray."""
 MOVING_SECONDS = 120.0
 """How long the bench waits for the arm to move again after a fault before it says so."""
-ACTORS = ("robot", "beside", "remote")
+LEARNER_PAUSE_SECONDS = 8.0
+"""How long the driving learner stays SIGSTOPped after a Stop (fault 5)."""
+PAUSE_WATCH_SECONDS = 6.0
+"""How long after its SIGCONT the bench watches the arm before the person presses Resume."""
+ACTORS = ("robot", "remote")
 RESUMED = re.compile(r"resumed from checkpoint at step (\d+)")
 STARTS_AT = re.compile(r"the actor starts at step (\d+)")
 
@@ -98,10 +107,14 @@ class Bench:
         self.learners: dict[str, subprocess.Popen] = {}
         self.takeovers: list[dict[str, float | int]] = []
         self.strays: list[int] = []
+        self.moves_after_stop = 0
+        self.without_hold = 0
+        """Moves or holds by a process without the hold."""
 
-    def start(self, name: str, *args: str) -> subprocess.Popen:
+    def start(self, name: str, *args: str, host: str | None = None) -> subprocess.Popen:
         log = (self.out / f"{name}.log").open("w")
-        process = subprocess.Popen([sys.executable, "-m", "cli", *args], env=self.env, stdout=log,
+        command = [sys.executable, "-m", "cli", *args]
+        process = subprocess.Popen(on_host(host, command) if host else command, env=self.env, stdout=log,
                                    stderr=subprocess.STDOUT, cwd=ROOT)  # fmt: skip
         self.processes.append(process)
         return process
@@ -203,6 +216,57 @@ class Bench:
         if alive:
             print(f"stray processes: {alive}", flush=True)
 
+    def touches(self, pid: int, after: float) -> int:
+        """The calls that move or hold the arm made by process `pid` after `after`."""
+        return sum(1 for what, at, by in calls(self.log) if what in MOVES and by == pid and at > after)
+
+    def stop_through_a_learner_pause(self, url: str) -> None:
+        """Fault 5: Stop, the driving learner paused past the watchdog and continued; Resume only later."""
+        self.wait_for_moves(after=time.monotonic(), count=10)
+        name, learner = self.driving()
+        asked = time.monotonic()
+        request(f"{url}/api/runs/{self.run_id}/robot/stop", "POST")
+        held = self.wait_for_hold(after=asked)
+        learner.send_signal(signal.SIGSTOP)
+        time.sleep(LEARNER_PAUSE_SECONDS)
+        learner.send_signal(signal.SIGCONT)
+        time.sleep(PAUSE_WATCH_SECONDS)
+        moved = sum(1 for what, at, _ in calls(self.log) if what in ("action", "reset") and at > held)
+        self.moves_after_stop += moved
+        print(f"Stop, then SIGSTOP {name} {LEARNER_PAUSE_SECONDS:g} s and SIGCONT: {moved} moves before Resume",
+              flush=True)  # fmt: skip
+        request(f"{url}/api/runs/{self.run_id}/robot/resume", "POST")
+        self.wait_for_moves(after=time.monotonic(), count=10)
+
+    def second_robot_process(self) -> None:
+        """Fault 6: `raq robot` for the same robot on another host name; it must refuse, touching nothing."""
+        started = time.monotonic()
+        second = self.start("robot-refused", "robot", ENV_ID, host="robotpc2")
+        code = second.wait(timeout=MOVING_SECONDS)
+        touched = self.touches(second.pid, started)
+        self.without_hold += touched
+        print(f"a second robot process on another host: exit code {code}, {touched} moves or holds", flush=True)
+
+    def robot_process_paused(self, robot: subprocess.Popen) -> subprocess.Popen:
+        """Fault 7: the robot's process SIGSTOPped until its row is stale, another takes the robot over, SIGCONT."""
+        self.wait_for_moves(after=time.monotonic(), count=10)
+        robot.send_signal(signal.SIGSTOP)
+        paused = time.monotonic()
+        while self.store.robot_process_of(env_id=ENV_ID) is not None:
+            time.sleep(0.2)
+        successor = self.start("robot-2", "robot", ENV_ID, host="robotpc3")
+        self.wait_for_moves(after=paused, count=10)
+        robot.send_signal(signal.SIGCONT)
+        continued = time.monotonic()
+        code = robot.wait(timeout=MOVING_SECONDS)
+        time.sleep(2.0)
+        touched = self.touches(robot.pid, continued)
+        self.without_hold += touched
+        print(f"the robot's process paused and taken over: it exited {code}, {touched} moves or holds after SIGCONT",
+              flush=True)  # fmt: skip
+        self.wait_for_moves(after=time.monotonic(), count=10)
+        return successor
+
     def lock_database(self, seconds: float) -> None:
         connection = sqlite3.connect(self.database, timeout=30)
         try:
@@ -250,6 +314,8 @@ def figures(log: Path, period: float, bench: Bench) -> dict:
         "stray_processes": len(bench.strays),
         "arm_moves_by_others": by_others + displaced,
         "camera_opened_by_others": camera_by_others,
+        "moves_after_stop": bench.moves_after_stop,
+        "moves_or_holds_without_hold": bench.without_hold,
         "actions": len(actions),
         "drivers": len(drivers),
         "takeovers": bench.takeovers,
@@ -260,8 +326,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument(
         "--actor", choices=ACTORS, default="robot",
-        help="who drives the arm: the robot's own process (default), an actor beside each learner, or one "
-        "`raq actor --run ID` for a remote_actor run",
+        help="who drives the arm: the robot's own process (default), or one `raq actor --run ID` for a remote_actor "
+        "run",
     )  # fmt: skip
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "out" / "robot-faults")
     args = parser.parse_args()
@@ -274,10 +340,11 @@ def main() -> int:
     try:
         url = bench.serve("serve")
         threading.Thread(target=resetter, args=(url, done, presses), daemon=True).start()
+        robot = None
         if args.actor == "remote":
             bench.start("actor", "actor", "--run", str(bench.run_id))
-        elif args.actor == "robot":
-            bench.start("robot", "robot", ENV_ID)
+        else:
+            robot = bench.start("robot", "robot", ENV_ID, host="robotpc")
             bench.wait_for_robot()
         bench.add_learner()
         bench.add_learner()
@@ -325,6 +392,11 @@ def main() -> int:
             time.sleep(0.5)
         print(f"a second server's previews and Camera panel: answers {sorted(set(answers))}", flush=True)
         bench.wait_for_moves(after=time.monotonic(), count=10)
+
+        bench.stop_through_a_learner_pause(url)
+        if robot is not None:
+            bench.second_robot_process()
+            bench.robot_process_paused(robot)
     finally:
         done.set()
         with contextlib.suppress(Exception):
@@ -339,6 +411,8 @@ def main() -> int:
         f"most drivers at once: {result['most_drivers_at_once']}, steps lost: {result['steps_lost']}, "
         f"stray processes: {result['stray_processes']}, arm moves by others: {result['arm_moves_by_others']}"
     )
+    print(f"moves after a Stop: {result['moves_after_stop']}, moves or holds by a process without the hold: "
+          f"{result['moves_or_holds_without_hold']}")  # fmt: skip
     print(f"shortest interval between two actions: {result['shortest_interval_ms']} ms; "
           f"steps counted twice: {result['steps_counted_twice']}; "
           f"camera opened by others: {result['camera_opened_by_others']}")  # fmt: skip

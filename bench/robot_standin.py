@@ -242,10 +242,10 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
         evaluate = [sys.executable, __file__, "--evaluate", str(policy_file), str(evaluations), str(done_file),
                     str(config.image_size)]  # fmt: skip
         processes.append(subprocess.Popen(evaluate, env=env, stdout=logs["evaluate"], stderr=subprocess.STDOUT))
-        if args.actor != "beside":  # the robot's own process, sharing only the database and the checkpoint store
-            actor = raq + (["actor", "--run", str(run.id)] if args.actor == "remote" else ["robot", STANDIN])
-            processes.append(subprocess.Popen(actor, env=env, stdout=logs["actor"], stderr=subprocess.STDOUT))
-            wait_for_robot(store, processes[-1])
+        # the robot's own process, sharing only the database and the checkpoint store with the learner
+        actor = raq + (["actor", "--run", str(run.id)] if args.actor == "remote" else ["robot", STANDIN])
+        processes.append(subprocess.Popen(actor, env=env, stdout=logs["actor"], stderr=subprocess.STDOUT))
+        wait_for_robot(store, processes[-1])
         learner = subprocess.Popen(raq + ["learn", "--once"], env=env, stdout=logs["learn"], stderr=subprocess.STDOUT)
         processes.append(learner)
         threading.Thread(target=resetter, args=(url, done, presses), daemon=True).start()
@@ -370,9 +370,9 @@ def main() -> int:
     parser.add_argument("--csv", type=Path, default=ROBOT_CSV, help="the table every seed's row goes to")
     parser.add_argument("--report", action="store_true", help="only write the rows of the seeds run in --out")
     parser.add_argument(
-        "--actor", choices=("robot", "beside", "remote"), default="robot",
-        help="who drives the stand-in: its own process, `raq robot` (default); an actor beside the learner; or "
-        "`raq actor --run ID` for a remote_actor run",
+        "--actor", choices=("robot", "remote"), default="robot",
+        help="who drives the stand-in: its own process, `raq robot` (default), or `raq actor --run ID` for a "
+        "remote_actor run",
     )  # fmt: skip
     parser.add_argument("--probes", action="store_true", help="Stop robot at STOP_AT; SIGKILL at the end")
     parser.add_argument("--seed", type=int, default=None, help=argparse.SUPPRESS)  # (one seed, in its own process;

@@ -81,12 +81,17 @@ def _serve_robot(env_id: str | None, run_id: int | None) -> int:
     assert env_id is not None
     what = f"robot {env_id}" + (f" (run {run_id} only)" if run_id is not None else "")
     print(f"{what}: serving its camera and driving its runs through {settings.resolved_database_url}", flush=True)
+    from contract.store.robot_processes import RobotServed
+
     try:
         ended = serve_robot(store, env_id=env_id, checkpoint_base=settings.resolved_checkpoint_url, only_run=run_id)
     except KeyboardInterrupt:
         ended = "interrupted: the arm is held safe"
+    except RobotServed as error:  # (nothing was opened, nothing moved)
+        print(f"raq robot: {error}", file=sys.stderr, flush=True)
+        return 1
     print(f"{what}: {ended}", flush=True)
-    return 0
+    return 1 if ended.startswith("displaced") else 0
 
 
 def cmd_robot(args: argparse.Namespace) -> int:
@@ -173,6 +178,39 @@ class LearnerRestarts:
         return True
 
 
+ROBOT_LOOK_SECONDS = 1.0
+"""How often `raq up` looks for a robot run that waits for its robot's process."""
+
+
+def _store(settings: Settings):  # type: ignore[no-untyped-def]
+    from contract.store import Store
+
+    return Store(settings.resolved_database_url)
+
+
+def _robots_to_start(store, settings: Settings, *, started: set[str]) -> list[str]:  # type: ignore[no-untyped-def]
+    """The robots whose run waits for their own process while none is up, that this `raq up` has not started: a
+    robot env allowed here (one registered by a factory function counts; the store away: none)."""
+    from contract.envs import env_id_problem
+    from robot.base import robot_class
+
+    try:
+        waiting = store.envs_awaiting_robot()
+    except Exception:  # noqa: BLE001 - the store away: looked at again
+        return []
+    found = []
+    for env_id in waiting:
+        if env_id in started or env_id_problem(env_id, allowed_modules=settings.env_modules) is not None:
+            continue
+        try:
+            if robot_class(env_id) is False:
+                continue
+        except Exception:  # noqa: BLE001, S112 - a module that fails to import: its learner says why
+            continue
+        found.append(env_id)
+    return found
+
+
 def cmd_up(args: argparse.Namespace) -> int:
     """The web server, N learner workers and the robots of RAQ_ROBOTS, their logs in one terminal; Ctrl-C stops them
     all."""
@@ -222,7 +260,16 @@ def cmd_up(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _stop)
     code = 0
     restarts = {prefix: LearnerRestarts() for prefix in restarted}
+    store, looked_at = None, 0.0
     while not stopping.is_set():
+        if time.monotonic() - looked_at >= ROBOT_LOOK_SECONDS:  # a robot run waiting for its robot's process
+            looked_at = time.monotonic()
+            store = store or _store(settings)
+            for env_id in _robots_to_start(store, settings, started={command[-1] for command in restarted.values()}):
+                prefix = f"robot-{len(restarted) + 1}"
+                print(f"raq up: a run waits for robot {env_id}; starting its process here", flush=True)
+                restarted[prefix], restarts[prefix] = raq + ["robot", env_id], LearnerRestarts()
+                start(prefix, restarted[prefix], learner_env)
         web = children["web    "]
         if web.poll() is not None:
             code = web.returncode or 1

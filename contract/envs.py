@@ -177,16 +177,6 @@ def env_class(env_id: str) -> type | None:
     return entry_point if isinstance(entry_point, type) else None
 
 
-def control_rate(env_id: str, control_hz: float = 0.0) -> float:
-    """Steps per second of a real-time actor for this env: `control_hz` when set, else a robot env's own rate
-    (`control_hz` and `needs_person_reset` on its class, as robot.base.RobotEnv has); 0: in lockstep."""
-    if control_hz > 0:
-        return float(control_hz)
-    cls = env_class(env_id)
-    is_robot = cls is not None and hasattr(cls, "control_hz") and hasattr(cls, "needs_person_reset")
-    return float(cls.control_hz) if is_robot else 0.0  # type: ignore[union-attr]
-
-
 def make_env(env_id: str, *, image_size: int, display_size: int) -> gym.Env:
     """The env with render_mode="rgb_array"; image_size / render_size are passed when the env takes them."""
     name = _import_for(env_id)

@@ -55,11 +55,6 @@ class Settings(BaseSettings):
         "running on this host. Comma-separated in RAQ_ROBOTS.",
     )
     server_url: str | None = Field(default=None, description="Base URL the oracle talks to.")
-    robot_host: str | None = Field(
-        default=None,
-        description="The host part of a robot's name (one actor drives a robot at a time): set it where hosts share a "
-        "name, or where one machine drives robots of the same env id; default: the hostname.",
-    )
     max_upload_bytes: int = Field(default=20 * 1024 * 1024, description="Largest accepted upload.")
     max_image_pixels: int = Field(default=40_000_000, description="Largest accepted decoded image (w*h).")
     checkpoint_url: str | None = Field(

@@ -18,6 +18,13 @@ its own reads the controls every CONTROL_POLL_SECONDS, so a stop is honoured wit
 The watchdog: the arm is held safe (`env.stop()`) as soon as the link says the learner is gone (its process
 died), its keep-alives have been silent `watchdog_seconds`, or the store has been unreachable that long. Without
 a learner the actor exits; after a database outage it stays stopped until a person presses Resume.
+
+A robot moves only on the store's word: before every move (a step, or the reset to the start pose) the actor asks
+the store whether it holds the robot for its run's current claim and whether a Stop is pending
+(`Store.may_move_robot`), and on a yes arms the env for ARM_SECONDS (robot/base.py refuses every move otherwise). A
+Stop found there, or read by the control thread, disarms it at once and holds until a person presses Resume, however
+many actors, learners or robot processes come and go meanwhile. A process that has lost its hold, or may have (no
+renewal confirmed within HOLD_SURE_SECONDS), never holds the arm safe: it lets go, touching nothing.
 """
 
 import contextlib
@@ -34,7 +41,8 @@ import torch
 from contract.config import TrainConfig
 from contract.envs import display_image, encode_png, make_env, model_image, scale_action
 from contract.store import Store
-from contract.store.robot_holds import holder_name, robot_name
+from contract.store.bounded import BoundedStore
+from contract.store.robot_holds import HOLD_LAPSES_SECONDS, holder_name, robot_name
 from learner.actor_messages import (
     Close,
     EpisodeStart,
@@ -46,7 +54,7 @@ from learner.actor_messages import (
 )
 from learner.exploration import EpisodeNoise, warm_up_action
 from learner.sac import SACAgent
-from robot.base import CameraBusy, RobotEnv
+from robot.base import CameraBusy, RobotNotArmed, is_robot
 
 CONTROL_POLL_SECONDS = 0.05
 """How often the actor's control thread reads Stop, Resume and Ready from the store."""
@@ -69,6 +77,14 @@ CAMERA_RETRY_SECONDS = 0.25
 """How often it asks."""
 TAKE_RETRY_SECONDS = 0.5
 """How often an actor whose robot another run holds asks for it again."""
+STORE_ANSWER_SECONDS = 0.5
+"""The longest the actor waits for one answer of the store before it counts the store as away."""
+ARM_SECONDS = 0.5
+"""How long the store's yes to a move arms the robot's env (counted from when the question was sent): a move the
+actor reaches later than this, after a pause of its process say, is refused."""
+HOLD_SURE_SECONDS = HOLD_LAPSES_SECONDS - 0.5
+"""The hold is surely still this process's within this many seconds of a renewal the store confirmed (counted from
+when it was sent); later it may have lapsed and been taken, so the arm is let go of rather than held."""
 
 
 def open_env(config: TrainConfig) -> gymnasium.Env:
@@ -169,11 +185,13 @@ class ActorLoop:
     """The actor's state in its process."""
 
     def __init__(
-        self, settings: ActorSettings, connection: Any, outbox: Any, env: gymnasium.Env | None = None
-    ) -> None:
+        self, settings: ActorSettings, connection: Any, outbox: Any, env: gymnasium.Env | None = None,
+        reached: tuple[int, int] | None = None,
+    ) -> None:  # fmt: skip
         """`connection` (poll, recv) brings the learner's messages and `outbox` (put) takes the actor's: the ends of
         its link through the store (learner/actor_link.py). `env`: one already
-        made (a remote actor keeps its robot between learners), else the run's env is made here."""
+        made (a remote actor keeps its robot between learners), else the run's env is made here. `reached`: the
+        (claim, step) an earlier actor of the run reached; for the same claim the run goes on from there."""
         torch.set_num_threads(1)
         with contextlib.suppress(OSError):  # the robot's clock before the learner's updates, where allowed
             os.setpriority(os.PRIO_PROCESS, 0, ACTOR_NICENESS)
@@ -191,7 +209,9 @@ class ActorLoop:
             else None
         )
         self.rng = np.random.default_rng([cfg.seed, 1])
-        self.store = Store(settings.database_url)
+        # every call answers within STORE_ANSWER_SECONDS: a silent link reads as the store away, and the watchdog
+        # holds the arm within watchdog_seconds however the link fails
+        self.store = BoundedStore(Store(settings.database_url), seconds=STORE_ANSWER_SECONDS)
         self.period = 1.0 / settings.control_hz
         self.pace = Pace(self.period)
         self.step = 0  # (the learner's "start" says where the run is)
@@ -203,11 +223,13 @@ class ActorLoop:
         self.state = ActorState.STARTING
         self.frame: np.ndarray | None = None
         self.started = False  # the learner sent the step its run is at
+        self.reached = reached
         # a robot is driven by one actor, for its run's current claim (contract/store/robot_holds.py); another env
         # (simulated, paced) has no hold
-        self.robot = robot_name(cfg.env_id) if isinstance(self.env.unwrapped, RobotEnv) else None
+        self.robot = robot_name(cfg.env_id) if is_robot(self.env) else None
         self.holder, self.claim = holder_name(), 0
         self.holding = False  # this actor holds the robot (taken, and not let go)
+        self.hold_confirmed_at = -np.inf  # when the last take or renewal the store confirmed was sent (monotonic)
         self.hold_lost = False  # a renewal found the hold gone: the run's claim moved on, or another took it
         self.exit_reason: str | None = None  # the learner's pipe closed, or it closed the actor
         self.done = threading.Event()
@@ -221,8 +243,11 @@ class ActorLoop:
             now = time.monotonic()
             if self.holding and not self.hold_lost and now - last_renewal >= HOLD_RENEW_SECONDS:
                 with contextlib.suppress(Exception):  # (the store away: the moves wait, and the watchdog holds)
-                    if not self.store.renew_robot(robot=self.robot, holder=self.holder):
+                    if self.store.renew_robot(robot=self.robot, holder=self.holder):
+                        self.hold_confirmed_at = max(self.hold_confirmed_at, now)
+                    else:
                         self.hold_lost = True
+                        self._disarm()
                         self.wake.set()
                     last_renewal = now
             png = None
@@ -242,8 +267,15 @@ class ActorLoop:
                     controls.stop_requested, controls.reset_count = status.stop_requested, status.reset_count
                     controls.evaluation_pending = status.evaluation_pending
                 if status.stop_requested:
+                    self._disarm()
                     self.wake.set()
             self.done.wait(CONTROL_POLL_SECONDS)
+
+    def _disarm(self) -> None:
+        """No move from now until the store says yes again (robot/base.py's guard; other envs have none)."""
+        disarm = getattr(self.env.unwrapped, "disarm", None)
+        if disarm is not None:
+            disarm()
 
     # ------------------------------------------------------------------ the watchdog
     def _read_learner(self) -> None:
@@ -259,6 +291,8 @@ class ActorLoop:
                 self._load_policy(message.modules)
             elif isinstance(message, Start):
                 self.step, self.claim, self.started = int(message.step), int(message.claim), True
+                if self.reached is not None and self.reached[0] == self.claim:  # (driven again, same learner)
+                    self.step = max(self.step, self.reached[1])
                 if self.step:  # a run taken over: its random actions go on from here, not again from the first
                     self.generator.manual_seed(self.config.seed * 1_000_003 + self.step)
                     self.rng = np.random.default_rng([self.config.seed, 1, self.step])
@@ -302,12 +336,14 @@ class ActorLoop:
         finally:
             self.done.set()
             self.control_thread.join(timeout=1.0)
+            self._secure_arm(lost=self.hold_lost)  # (held already, unless the loop ended on an error of its own)
             if self.holding:
                 with contextlib.suppress(Exception):
                     self.store.release_robot(robot=self.robot, holder=self.holder)
             if self.owns_env:
                 with contextlib.suppress(Exception):
                     self.env.close()
+            self.store.close()
 
     def _loop(self) -> None:
         cfg = self.config
@@ -345,7 +381,10 @@ class ActorLoop:
             if not self._may_move():  # (the step is sent late, once the hold says so, or never)
                 continue
             started = time.monotonic()
-            raw, reward, terminated, truncated, info = self.env.step(scale_action(action, self.action_space))
+            try:
+                raw, reward, terminated, truncated, info = self.env.step(scale_action(action, self.action_space))
+            except RobotNotArmed:  # (reached after its arming ran out, or disarmed by a Stop: asked again)
+                continue
             self.pace.sent(started)
             period = None if last_step is None else started - last_step
             last_step = started
@@ -388,6 +427,7 @@ class ActorLoop:
             self._read_learner()
             if self._watchdog() in EXIT_REASONS:
                 return False
+            asked = time.monotonic()
             try:
                 answer = self.store.take_robot(
                     robot=self.robot, run_id=self.settings.run_id, claim=self.claim, holder=self.holder
@@ -395,7 +435,7 @@ class ActorLoop:
             except Exception:  # (the store away: asked again)
                 answer = None
             if answer is not None and answer.taken:
-                self.holding = True
+                self.holding, self.hold_confirmed_at = True, asked
                 return True
             if answer is not None and answer.stale_claim:
                 self._stop_arm(ActorState.CLAIM_LOST)
@@ -405,15 +445,29 @@ class ActorLoop:
             self.wake.wait(TAKE_RETRY_SECONDS)
 
     def _may_move(self) -> bool:
-        """The robot may move now: this actor holds it, for the run's current claim, renewed lately (always true
-        of an env that is no robot). Asked before every move; while it is false the move waits a poll."""
+        """The robot may move now, and is armed for ARM_SECONDS: this actor holds it, for the run's current claim,
+        renewed lately, and no Stop is pending (always true of an env that is no robot). Asked before every move;
+        while it is false the move waits a poll, and a pending Stop is the controls' at once."""
         if self.robot is None:
             return True
+        asked = time.monotonic()
+        answer = None
         with contextlib.suppress(Exception):
-            if not self.hold_lost and self.store.holds_robot(robot=self.robot, holder=self.holder):
-                return True
+            if not self.hold_lost:
+                answer = self.store.may_move_robot(robot=self.robot, holder=self.holder)
+        if answer is not None and answer.held:
+            self.hold_confirmed_at = max(self.hold_confirmed_at, asked)
+        if answer is not None and answer.allowed and not self.controls.stop_requested:
+            self.env.unwrapped.arm(seconds=ARM_SECONDS - (time.monotonic() - asked))  # type: ignore[attr-defined]
+            return True
+        if answer is not None and answer.stop_pending:
+            self.controls.stop_requested = True
         self.wake.wait(CONTROL_POLL_SECONDS)
         return False
+
+    def _hold_is_sure(self) -> bool:
+        """The store confirmed this process's hold lately enough that nobody else can have taken it since."""
+        return self.holding and not self.hold_lost and time.monotonic() - self.hold_confirmed_at < HOLD_SURE_SECONDS
 
     def _set_state(self, state: str) -> None:
         if state != self.state:
@@ -443,25 +497,33 @@ class ActorLoop:
             self.wake.wait(self.period)
 
     def _stop_arm(self, state: str) -> None:
-        """Hold the arm (once the hold is lost, let go of it instead: another run's actor may drive it) and say so."""
-        if state == ActorState.CLAIM_LOST:
-            let_go = getattr(self.env.unwrapped, "let_go", None)
-            if let_go is not None:
-                let_go()
-        elif not getattr(self.env.unwrapped, "stopped", False):
-            stop = getattr(self.env.unwrapped, "stop", None)
-            if stop is not None:
-                stop()
+        """Hold the arm (once the hold is lost or may be, let go of it instead: another process may drive it) and
+        say so."""
+        self._secure_arm(lost=state == ActorState.CLAIM_LOST)
         self._set_state(state)
         if state in (ActorState.LEARNER_GONE, ActorState.DATABASE_GONE, ActorState.CLAIM_LOST):
             print(f"actor of run {self.settings.run_id}: arm {state}", flush=True)
         with contextlib.suppress(Exception):  # the pages see it now (and the actor may exit next)
             self.store.report_actor(run_id=self.settings.run_id, state=state)
 
+    def _secure_arm(self, *, lost: bool) -> None:
+        """Hold the arm safe while this process surely holds it; else (`lost`, or not confirmed lately) let go."""
+        unwrapped = self.env.unwrapped
+        if self.robot is not None and (lost or not self._hold_is_sure()):
+            unwrapped.let_go()  # type: ignore[attr-defined]
+        elif not getattr(unwrapped, "stopped", False):
+            stop = getattr(unwrapped, "stop", None)
+            if stop is not None:
+                stop()
+
     def _wait_for_store(self) -> None:
-        """After an outage: once the store answers again, the run's robot is marked stopped (a person resumes)."""
+        """After an outage: once the store answers again, the run's robot is marked stopped (a person resumes);
+        unless this process no longer holds the robot (another took it over meanwhile): it lets go and exits."""
         while True:
             with contextlib.suppress(Exception):
+                if self.robot is not None and not self.store.renew_robot(robot=self.robot, holder=self.holder):
+                    self.hold_lost = True
+                    return
                 self.store.request_robot_stop(run_id=self.settings.run_id)
                 controls = self.controls
                 controls.asked_after = controls.last_answer = time.monotonic()
@@ -482,10 +544,14 @@ class ActorLoop:
         cfg, run_id = self.config, self.settings.run_id
         person = self.settings.person_reset or getattr(self.env.unwrapped, "needs_person_reset", False)
         while True:
-            while not self._may_move():
-                if self._watchdog() in EXIT_REASONS:
-                    return None
-            raw, info = self.env.reset()  # the arm to its start pose, before anybody's hands are in the scene
+            if self._hold_if_needed() == "exit":  # (a pending Stop holds here until Resume)
+                return None
+            if not self._may_move():
+                continue
+            try:
+                raw, info = self.env.reset()  # the arm to its start pose, before anybody's hands are in the scene
+            except RobotNotArmed:  # (disarmed by a Stop meanwhile: asked again)
+                continue
             if not person:
                 break
             waited = self._wait_for_person()

@@ -72,6 +72,14 @@ def raised(traceback_text: str) -> str:
     return traceback_text.strip().splitlines()[-1]
 
 
+def waiting_for_robot(env_id: str) -> str:
+    """What a run of a robot says while no process of its robot is up."""
+    return (
+        f"waiting for the robot's own process: start `raq robot {env_id}` on the robot's host (`raq up` starts it "
+        "on its own host)"
+    )
+
+
 def driving(run_id: int) -> str:
     """A robot's process's state while it drives a run's robot."""
     return f"driving run {run_id}"
@@ -311,13 +319,16 @@ class RemoteActor:
         ACTOR_WAIT_SECONDS without one, not counting the time the robot's process drives another run: the run's
         events say which)."""
         deadline = time.monotonic() + ACTOR_WAIT_SECONDS
-        env_id, busy_with = self.store.get_run(run_id=self.run_id).env_id, None
+        env_id, busy_with, told = self.store.get_run(run_id=self.run_id).env_id, None, False
         while True:
             link = self.store.actor_link(run_id=self.run_id)
             alive = link.actor_age_seconds is not None and link.actor_age_seconds < ACTOR_LIVE_SECONDS
             if link.actor_spaces is not None and alive:
                 return
             robot = self.store.robot_process_of(env_id=env_id)
+            if robot is None and not told:  # (said once: the run's page shows it)
+                told = True
+                self.store.record_event(run_id=self.run_id, message=waiting_for_robot(env_id))
             other = None if robot is None else driven_run(robot.state)
             if robot is not None and other not in (None, self.run_id):  # the robot is up, and busy
                 deadline = time.monotonic() + ACTOR_WAIT_SECONDS

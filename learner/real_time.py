@@ -1,10 +1,10 @@
 """The real-time runner: a robot (or any env given a control_hz) steps at its own rate in an actor that never
 waits for the learner; the learner takes the actor's steps as they come and runs SAC updates while none waits.
 
-The actor is the robot's own process when one is up (`raq robot ENV`, learner/robot_process.py; with remote_actor
-the learner waits for it), else a process the learner starts beside itself; either is linked through the database
-and the checkpoint store (learner/actor_link.py). There are no evaluation envs: a robot
-is not opened twice. A person's Evaluate now episodes run on the robot itself and are asked about
+A robot is driven only by its own process (`raq robot ENV`, learner/robot_process.py): the learner links to it and
+waits for it, never making the env; another env given a control_hz is stepped by a process the learner starts
+beside itself. Either is linked through the database and the checkpoint store (learner/actor_link.py). There are no
+evaluation envs: a robot is not opened twice. A person's Evaluate now episodes run on the robot itself and are asked about
 (learner/robot_evaluation.py).
 
 The actor's steps stay in the store until a checkpoint holds them: a learner that takes such a run over adds
@@ -18,7 +18,6 @@ from pathlib import Path
 import numpy as np
 
 from contract.config import TrainConfig
-from contract.envs import control_rate
 from contract.learner_pace import PACE_METRIC
 from contract.store import Store
 from learner.actor import ActorSettings
@@ -27,6 +26,7 @@ from learner.actor_messages import ActorMessage, EpisodeStart, StateChange, Tran
 from learner.robot_evaluation import RobotEvaluation
 from learner.run_control import RunControl
 from learner.trainer import EnvEpisode, EnvStep, Trainer
+from robot.base import control_rate, robot_class
 
 REAL_TIME_SLICE = 0.5
 """Seconds the loop waits for the actor's next step before it looks at its controls again."""
@@ -34,9 +34,12 @@ ACTOR_POLL_SECONDS = 0.02
 """How long one wait for the actor's next message lasts once the updates are as many as allowed."""
 
 
-def runs_in_real_time(config: TrainConfig) -> bool:
-    """The run's env steps in real time: a robot env, one given a control_hz, or an actor on another host."""
-    return config.remote_actor or control_rate(config.env_id, config.control_hz) > 0
+def runs_in_real_time(config: TrainConfig, store: Store) -> bool:
+    """The run's env steps in real time: a robot env (by its class, or one registered by a factory function whose
+    robot process is up), one given a control_hz, or an actor on another host."""
+    if config.remote_actor or control_rate(config.env_id, config.control_hz) > 0:
+        return True
+    return robot_class(config.env_id) is None and store.robot_process_of(env_id=config.env_id) is not None
 
 
 class RealTimeRunner:
@@ -49,8 +52,8 @@ class RealTimeRunner:
         execution = config.execution
         self.claim = store.run_claim(run_id=control.run_id)  # (the learner's, read as it set the run up)
         self.actor: RemoteActor
-        if execution.remote_actor or store.robot_process_of(env_id=config.env_id) is not None:
-            # the robot's own process drives it (`raq robot`, `raq actor`): the env is neither made nor imported here
+        if execution.remote_actor or robot_class(config.env_id) is not False:
+            # the robot's own process drives it (`raq robot`, `raq actor`): the env is never made here
             self.actor = RemoteActor(
                 store, run_id=control.run_id, claim=self.claim, checkpoint_file=str(checkpoint_file),
                 heartbeat=control.tick,

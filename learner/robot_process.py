@@ -9,8 +9,11 @@ It makes the robot's env once, which never moves the arm (robot/base.py), and th
 - drives the run whose learner opens the link (learner/actor_link.py: the actor loop of learner/actor.py over a
   `StoreLink`), sized for that run, for as long as that learner keeps it; the arm is held safe between learners.
 
-A learner of a robot env whose robot process is up links to it (learner/real_time.py); without one, the learner
-starts an actor beside itself, and the robot's row in `robot_holds` keeps the two from driving the arm at once.
+A learner of a robot env links to it (learner/real_time.py) and never drives the robot itself: without a robot
+process its run waits, and says how to start one. One process serves a robot, whatever the host: a second one
+refuses to start and names the first (contract/store/robot_processes.py); one that finds, after a pause, that
+another took the robot over lets go of the arm, touching nothing, and ends. A run driven again (its learner was
+quiet for a while) goes on from the step its last actor reached, so no warm-up action is sent twice.
 """
 
 import contextlib
@@ -23,7 +26,7 @@ import numpy as np
 
 from contract.checkpoint_location import ACTOR_POLICY_FILENAME, checkpoint_url, sibling
 from contract.config import TrainConfig
-from contract.envs import control_rate, encode_png
+from contract.envs import encode_png
 from contract.store import RunStatus, Store, is_transient
 from contract.store.robot_holds import holder_name, robot_name
 from contract.store.robot_processes import (
@@ -31,11 +34,12 @@ from contract.store.robot_processes import (
     FRAME_WATCHED_SECONDS,
     ROBOT_REPORT_SECONDS,
     RobotProcessStatus,
+    RobotServed,
 )
 from learner.actor import ActorLoop, ActorSettings, ActorState, open_env
 from learner.actor_link import StoreLink, driving, encode_message
 from learner.actor_messages import Failure
-from robot.base import RobotEnv
+from robot.base import control_rate, is_robot
 
 IDLE_SECONDS = 0.1
 """How often an idle robot process looks for a learner and for a page watching."""
@@ -58,14 +62,21 @@ class RobotProcess:
         self.status: RobotProcessStatus | None = None  # the row as last written (whether a page watches)
         self.ended_links: dict[int, object] = {}  # run id: its learner's last keep-alive when its actor ended
         self.failed_claims: dict[int, int] = {}  # run id: the claim its actor failed at
+        self.reached: dict[int, tuple[int, int]] = {}  # run id: (claim, step) its last actor reached
+        self.displaced: str | None = None  # why another process serves the robot now (this one lets go and ends)
+        self.actor: ActorLoop | None = None
         self.reporter = threading.Thread(target=self._report, name="robot-report", daemon=True)
 
     @property
     def has_camera(self) -> bool:
-        return self.env is not None and isinstance(self.env.unwrapped, RobotEnv)
+        return self.env is not None and is_robot(self.env)
 
     def serve(self) -> str:
-        """Serve until stopped, or until the one run it serves ends. Returns why it ended."""
+        """Serve until stopped, or until the one run it serves ends. Returns why it ended; RobotServed when another
+        process serves the robot (nothing opened)."""
+        self.status = self.store.report_robot_process(
+            robot=self.robot, env_id=self.env_id, holder=self.holder, state=self.state
+        )
         self.reporter.start()
         try:
             if self.only_run is not None:
@@ -74,7 +85,7 @@ class RobotProcess:
                 self.env = open_env(TrainConfig(env_id=self.env_id))  # (the env's own default sizes)
                 self.sizes = None
             self.state = WAITING_FOR_LEARNER
-            while not self.stop.is_set():
+            while not self.stop.is_set() and self.displaced is None:
                 run_id = self._learner_waiting()
                 if isinstance(run_id, str):
                     return run_id
@@ -83,13 +94,16 @@ class RobotProcess:
                     continue
                 self._publish_frame()
                 self.stop.wait(IDLE_SECONDS)
-            return "stopped"
+            return self.displaced or "stopped"
         finally:
             self.stop.set()
             self.reporter.join(timeout=2 * ROBOT_REPORT_SECONDS)
             if self.env is not None:
-                with contextlib.suppress(Exception):
-                    self.env.unwrapped.stop()  # type: ignore[attr-defined]
+                with contextlib.suppress(Exception):  # (held by the actor already; touched here by nobody else's)
+                    if self.displaced is None:
+                        self.env.unwrapped.stop()  # type: ignore[attr-defined]
+                    else:
+                        self.env.unwrapped.let_go()  # type: ignore[attr-defined]
                 self.env.close()
             with contextlib.suppress(Exception):
                 self.store.robot_process_ended(robot=self.robot, holder=self.holder)
@@ -130,6 +144,8 @@ class RobotProcess:
                 robot=self.robot, env_id=self.env_id, holder=self.holder, state=self.state,
                 frame_png=encode_png(pixels),
             )  # fmt: skip
+        except RobotServed as error:
+            self._displace(str(error))
         except Exception as error:  # the store away, or the camera gave nothing this time: the next try
             if not is_transient(error):
                 print(f"robot {self.robot}: no camera frame: {type(error).__name__}: {error}", flush=True)
@@ -137,11 +153,27 @@ class RobotProcess:
     def _report(self) -> None:
         """Stamp the robot's row every ROBOT_REPORT_SECONDS, whatever the main thread is doing."""
         while not self.stop.is_set():
-            with contextlib.suppress(Exception):
+            try:
                 self.status = self.store.report_robot_process(
                     robot=self.robot, env_id=self.env_id, holder=self.holder, state=self.state
                 )
+            except RobotServed as error:
+                self._displace(str(error))
+                return
+            except Exception:  # noqa: BLE001, S110 - the store away: stamped at the next try
+                pass
             self.stop.wait(ROBOT_REPORT_SECONDS)
+
+    def _displace(self, why: str) -> None:
+        """Another process took the robot over (this one was paused past ROBOT_PROCESS_LIVE_SECONDS): the actor lets
+        go of the arm without touching it, and this process ends."""
+        print(f"robot {self.robot}: {why}; letting go of the arm", flush=True)
+        self.displaced = f"displaced: {why}"
+        actor = self.actor
+        if actor is not None:
+            actor.hold_lost = True
+            actor._disarm()
+            actor.wake.set()
 
     # ------------------------------------------------------------------ a run
     def _run_config(self, run_id: int) -> TrainConfig:
@@ -152,7 +184,7 @@ class RobotProcess:
         """The env at the run's observation and display sizes: a robot's view is set; another env is made anew
         (it moves no arm)."""
         sizes = (config.image_size, config.display_size)
-        if self.env is not None and isinstance(self.env.unwrapped, RobotEnv):
+        if self.env is not None and is_robot(self.env):
             self.env.unwrapped.set_view(image_size=config.image_size, display_size=config.display_size)
         elif self.env is None or self.sizes != sizes:
             if self.env is not None:
@@ -169,12 +201,12 @@ class RobotProcess:
         actor: ActorLoop | None = None
         try:
             config = self._run_config(run_id)
-            hz = control_rate(config.env_id, config.control_hz)
+            self._sized_for(config)
+            hz = control_rate(config.env_id, config.control_hz, env=self.env)
             if hz <= 0:
                 raise ValueError(
                     f"{config.env_id} is not a robot env: give the run a control_hz to drive it in real time"
                 )
-            self._sized_for(config)
             settings = ActorSettings(
                 config.to_dict(), run_id=run_id, database_url=self.store.url, control_hz=hz,
                 person_reset=config.reset_every_episode,
@@ -182,7 +214,9 @@ class RobotProcess:
             policy_url = sibling(checkpoint_url(self.checkpoint_base, run_id), ACTOR_POLICY_FILENAME)
             print(f"robot {self.robot}: driving run {run_id} for its learner", flush=True)
             link = StoreLink(self.store, run_id=run_id, policy_url=policy_url, hz=hz)
-            actor = ActorLoop(settings, link.connection, link.outbox, env=self.env)
+            actor = self.actor = ActorLoop(
+                settings, link.connection, link.outbox, env=self.env, reached=self.reached.get(run_id)
+            )
             actor.run()
         except Exception:
             failure = Failure(traceback.format_exc())
@@ -200,6 +234,9 @@ class RobotProcess:
             if link is not None:
                 link.close()
                 self.ended_links[run_id] = link.learner_seen_at
+            if actor is not None and actor.started:
+                self.reached[run_id] = (actor.claim, actor.step)
+            self.actor = None
             self.state = WAITING_FOR_LEARNER
         if actor is not None and actor.exit_reason == ActorState.CLOSED:  # (the run's card: its learner let go)
             with contextlib.suppress(Exception):

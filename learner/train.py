@@ -70,7 +70,7 @@ def open_runner(
         store, run_id=run_id, worker=worker, counters=Counters(), heartbeat_seconds=config.heartbeat_seconds,
         interrupt=interrupt or threading.Event(),
     )  # fmt: skip
-    kind = RealTimeRunner if runs_in_real_time(config) else LockstepRunner
+    kind = RealTimeRunner if runs_in_real_time(config, store) else LockstepRunner
     return kind(config, store=store, control=control, goal_set_id=goal_set_id, checkpoint_file=checkpoint_file)
 
 

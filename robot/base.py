@@ -2,9 +2,15 @@
 
 Subclass `RobotEnv` and write five methods: `read_camera`, `send_action`, `reset_scene`, `hold_safe` and,
 if the robot can tell, `read_success`. Only `send_action`, `reset_scene` and `hold_safe` move or hold the arm:
-`__init__` connects to the camera and the arm and never moves it, and `read_camera` only reads. One process makes
-the env: the robot's own (`raq robot ENV_ID`, learner/robot_process.py), which reads the camera for the pages
-between runs and drives the run whose learner links to it; the web server never makes it.
+`__init__` connects to the camera and the arm and never moves it, and `read_camera` only reads. One process drives
+the robot: its own (`raq robot ENV_ID`, learner/robot_process.py), which reads the camera for the pages between
+runs and drives the run whose learner links to it.
+
+Armed, or it does not move: `reset()` and `step()` refuse (RobotNotArmed) unless the robot's driver armed the env
+(`arm`) within the last moments, after it found in the store that it holds the robot for its run's current claim
+and that no Stop is pending. An env made anywhere else (a preview, a lockstep runner, a script) raises instead of
+moving, and its `close()` touches nothing. `is_robot` is the one answer to "is this a robot?", for a class, a made
+env (through any wrappers) or an env id.
 
 The base class does the rest the same way for every robot: actions are clipped to [-1, 1] and passed through your
 `limit_action` (workspace bounds, speed limits; told the seconds since the previous action) before they reach the
@@ -23,11 +29,17 @@ import numpy as np
 from gymnasium import spaces
 from PIL import Image
 
+from contract.envs import env_class
 from contract.images import model_view
 
 
 class RobotStopped(RuntimeError):
     """An action was sent after `stop()` and before the next `reset()`."""
+
+
+class RobotNotArmed(RuntimeError):
+    """A move was asked of a robot that its driver has not armed (or whose arming ran out): only the robot's own
+    process moves it, after taking its hold, with no Stop pending."""
 
 
 class CameraBusy(OSError):
@@ -80,7 +92,10 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self.action_space = spaces.Box(-1.0, 1.0, (action_dim,), np.float32)
         self.observation_space = spaces.Box(0, 255, (self.image_size, self.image_size, 3), np.uint8)
         self.render_mode = "rgb_array"
-        self.stopped = False
+        self.stopped = True
+        """No move since the arm was last held (or let go): `close()` and `stop()` touch nothing then."""
+        self.armed_until = -np.inf
+        """Until when (time.monotonic()) the driver allows a move; see `arm`."""
         self.last_frame: np.ndarray | None = None
         self.last_action_at: float | None = None
         """When the last action was sent (time.monotonic()); None: none since the last reset()."""
@@ -130,10 +145,32 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"the camera gave a {frame.dtype} frame of shape {frame.shape}; expected (H, W, 3) uint8")
         return np.asarray(model_view(Image.fromarray(frame), self.image_size))
 
+    def arm(self, *, seconds: float) -> None:
+        """Allow moves for the next `seconds`: called by the robot's driver only, right after the store said that it
+        holds the robot for its run's current claim and that no Stop is pending."""
+        self.armed_until = time.monotonic() + seconds
+
+    def disarm(self) -> None:
+        """Refuse every move from now until the driver arms the env again (a Stop, a lost hold, a silent store)."""
+        self.armed_until = -np.inf
+
+    @property
+    def armed(self) -> bool:
+        return time.monotonic() < self.armed_until
+
+    def _check_armed(self, move: str) -> None:
+        if not self.armed:
+            raise RobotNotArmed(
+                f"{type(self).__name__}.{move}: the robot is not armed; only its own process (`raq robot ENV_ID`) "
+                "moves it, while it holds it and no Stop is pending"
+            )
+
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        self._check_armed("reset")
         super().reset(seed=seed)
+        self.stopped = False  # (from here on the arm may be moving: stop() holds it)
         self.reset_scene()
         self.stopped, self.last_action_at = False, None
         return self.look()
@@ -146,6 +183,7 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self.stopped:
             raise RobotStopped("the robot was stopped: reset() before the next action")
+        self._check_armed("step")
         action = np.nan_to_num(np.asarray(action, dtype=np.float32).reshape(self.action_space.shape), nan=0.0)
         now = time.monotonic()
         seconds = 1.0 / self.control_hz if self.last_action_at is None else now - self.last_action_at
@@ -159,12 +197,16 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._observation(), 0.0, False, False, self._info()
 
     def stop(self) -> None:
-        """Hold the arm safe now; actions are refused until the next reset()."""
-        self.stopped = True
-        self.hold_safe()
+        """Hold the arm safe now, if it moved since it was last held or let go; moves are refused until the driver
+        arms the env again and resets it. Only the driver calls it, and only while it holds the robot."""
+        self.disarm()
+        if not self.stopped:
+            self.stopped = True
+            self.hold_safe()
 
     def let_go(self) -> None:
-        """Refuse further actions without touching the arm, close() included: another process drives it now."""
+        """Refuse further moves without touching the arm, close() included: another process may drive it now."""
+        self.disarm()
         self.stopped = True
 
     def render(self) -> np.ndarray | None:
@@ -180,8 +222,7 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         return np.asarray(model_view(Image.fromarray(frame), self.display_size))
 
     def close(self) -> None:
-        if not self.stopped:
-            self.stop()
+        self.stop()
         super().close()
 
     def _observation(self) -> np.ndarray:
@@ -191,6 +232,33 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
     def _info(self) -> dict[str, Any]:
         success = self.read_success()
         return {} if success is None else {"success": float(success)}
+
+
+def is_robot(thing: object) -> bool:
+    """Whether `thing` is a robot: a RobotEnv subclass, or a made env that is one under its wrappers. The one check
+    the server, the runners and the driver ask (`robot_class` answers it for an env id)."""
+    if isinstance(thing, gym.Env):
+        thing = type(thing.unwrapped)
+    return isinstance(thing, type) and issubclass(thing, RobotEnv)
+
+
+def robot_class(env_id: str) -> bool | None:
+    """Whether an env id makes a robot, from its registration, without making it: None when the registration
+    cannot tell (an entry point that is a factory function); ask `is_robot` of the made env then."""
+    cls = env_class(env_id)
+    return None if cls is None else is_robot(cls)
+
+
+def control_rate(env_id: str, control_hz: float = 0.0, env: gym.Env | None = None) -> float:
+    """Steps per second of a real-time actor for this env: `control_hz` when set, else a robot's own rate (of
+    `env` when made, else of its registered class); 0: in lockstep (an env that is no robot, or one whose
+    registration cannot tell)."""
+    if control_hz > 0:
+        return float(control_hz)
+    if env is not None:
+        return float(env.unwrapped.control_hz) if is_robot(env) else 0.0  # type: ignore[attr-defined]
+    cls = env_class(env_id)
+    return float(cls.control_hz) if cls is not None and is_robot(cls) else 0.0  # type: ignore[union-attr]
 
 
 def _takes_seconds(limit_action: Callable[..., Any]) -> bool:

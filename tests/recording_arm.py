@@ -7,7 +7,9 @@ was held, and by which process (Linux's monotonic clock is the same in every pro
 what `limit_action` was told. `make("recording_arm:RecordingArm-v0")` with RAQ_ENV_MODULES listing
 `recording_arm` and this folder on the path. `LateArm-v0` is the same arm whose every LATE_EVERY-th action takes
 1.3 control periods to send; `ExclusiveArm-v0` one whose camera opens in one process at a time (robot.base's
-CameraBusy for a second), as most USB cameras do; `JammingArm-v0` one whose JAM_AT-th action raises.
+CameraBusy for a second), as most USB cameras do; `JammingArm-v0` one whose JAM_AT-th action raises;
+`FactoryArm-v0` the recording arm registered through a factory function (`make_arm`), as a lab that wraps its
+driver might register it: its registration cannot say that it is a robot.
 """
 
 import os
@@ -27,6 +29,7 @@ ENV_ID = "recording_arm:RecordingArm-v0"
 LATE_ENV_ID = "recording_arm:LateArm-v0"
 EXCLUSIVE_ENV_ID = "recording_arm:ExclusiveArm-v0"
 JAMMING_ENV_ID = "recording_arm:JammingArm-v0"
+FACTORY_ENV_ID = "recording_arm:FactoryArm-v0"
 LATE_EVERY = 5
 JAM_AT = 20
 
@@ -107,6 +110,11 @@ class JammingArm(RecordingArm):
         super().send_action(action)
 
 
+def make_arm(**kwargs: object) -> RecordingArm:
+    """The recording arm, made by a function (FactoryArm-v0's entry point)."""
+    return RecordingArm(**kwargs)  # type: ignore[arg-type]
+
+
 def recorded(log: Path) -> list[tuple[str, float]]:
     """The log's events in order: (what, monotonic time)."""
     return [(what, at) for what, at, _ in recorded_by(log)]
@@ -117,3 +125,4 @@ if "RecordingArm-v0" not in gym.registry:
     gym.register(id="LateArm-v0", entry_point="recording_arm:LateArm", max_episode_steps=1000)
     gym.register(id="ExclusiveArm-v0", entry_point="recording_arm:ExclusiveArm", max_episode_steps=1000)
     gym.register(id="JammingArm-v0", entry_point="recording_arm:JammingArm", max_episode_steps=1000)
+    gym.register(id="FactoryArm-v0", entry_point=make_arm, max_episode_steps=1000)

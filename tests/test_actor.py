@@ -1,8 +1,9 @@
-"""The real-time actor: the env steps at its own rate in its own process while the learner trains beside it;
-a person's reset before each episode, Stop robot and Resume through the store; the watchdog holds the arm when
-the learner is killed or the database goes away."""
+"""The real-time actor: the env steps at its own rate in its own process while the learner trains; a person's
+reset before each episode, Stop robot and Resume through the store; the watchdog holds the arm when the learner is
+killed or the database goes away. A robot (the recording arm) is driven by its own process (`raq robot`, here on a
+thread of the test or in a process of its own), a simulated env given a control_hz by a process beside its
+learner."""
 
-import contextlib
 import functools
 import os
 import signal
@@ -14,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from conftest import create_run, learn_once_beside
+from conftest import create_run, learn_once_beside, robot_serving, robot_subprocess
 from pg_server import PostgresServer
 from recording_arm import ENV_ID, LOG_VARIABLE, recorded
 from test_learner_run import tiny_config
@@ -105,6 +106,8 @@ def test_stop_robot_holds_the_arm_within_a_period_and_resume_continues(
 
     run_id = create_run(store, goal_set_id, config)
     learner = threading.Thread(target=work, args=(settings,), kwargs={"worker_name": "w", "once": True})
+    robot = robot_serving(store, ENV_ID, settings.checkpoint_dir)
+    robot.__enter__()
     learner.start()
     try:
         wait_for(lambda: len(times("action")) >= 5 or not learner.is_alive(), 120, "the arm to move")
@@ -127,14 +130,17 @@ def test_stop_robot_holds_the_arm_within_a_period_and_resume_continues(
     finally:
         store.request_stop(run_id=run_id)
         learner.join(timeout=180)
+        robot.__exit__(None, None, None)
         get_settings.cache_clear()
     messages = [event.message for event in store.events(run_id=run_id, limit=1000)]
     assert f"robot: {ActorState.STOPPED}" in messages
 
 
-def arm_env(settings: Settings, log: Path) -> dict[str, str]:
-    """A learner subprocess's environment for a run on the recording arm that writes to `log`."""
-    env = dict(os.environ, RAQ_DATA_DIR=str(settings.data_dir), RAQ_DATABASE_URL=settings.resolved_database_url)
+def arm_env(settings: Settings, log: Path, database_url: str | None = None) -> dict[str, str]:
+    """The environment of a learner or robot subprocess for a run on the recording arm that writes to `log`: the
+    store (`database_url`, else the settings'), the data folder, the arm's module."""
+    database_url = database_url or settings.resolved_database_url
+    env = dict(os.environ, RAQ_DATA_DIR=str(settings.data_dir), RAQ_DATABASE_URL=database_url)
     env.update(
         OMP_NUM_THREADS="1", RAQ_ENV_MODULES="learner.testing_envs,recording_arm", PYTHONPATH=f"{ROOT / 'tests'}",
     )  # fmt: skip
@@ -142,31 +148,12 @@ def arm_env(settings: Settings, log: Path) -> dict[str, str]:
     return env
 
 
-def live_children(pid: int) -> set[int]:
-    """The processes whose parent is `pid` and which have not exited (a zombie has)."""
-    children = set()
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        with contextlib.suppress(OSError):
-            fields = stat.read_text().rpartition(")")[2].split()
-            if int(fields[1]) == pid and fields[0] != "Z":
-                children.add(int(stat.parent.name))
-    return children
-
-
-def is_running(pid: int) -> bool:
-    """The process exists and has not exited (a zombie has)."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0] != "Z"
-    except OSError:
-        return False
-
-
-def test_a_killed_learners_actor_holds_the_arm_sends_nothing_more_and_exits(
+def test_a_killed_learners_actor_holds_the_arm_sends_nothing_more_and_waits_for_the_next(
     setup: tuple[Settings, Store, int], tmp_path: Path
 ) -> None:
-    """A SIGKILLed learner's actor holds the arm within the watchdog time, sends no action after the hold, and
-    exits within a few seconds, leaving no process behind. Each step is larger than a pipe's buffer (a 256-pixel
-    view), as a robot camera's are: one the dead learner never reads cannot keep the actor alive."""
+    """The robot's own process drives the run of a learner that is SIGKILLed: the arm is held within the watchdog
+    time, no action follows the hold, and the process waits for the next learner, the arm held. Each step is larger
+    than a pipe's buffer (a 256-pixel view), as a robot camera's are."""
     settings, store, goal_set_id = setup
     log = tmp_path / "arm.log"
     config = real_time_config(
@@ -174,31 +161,34 @@ def test_a_killed_learners_actor_holds_the_arm_sends_nothing_more_and_exits(
         display_size=256,
     )  # fmt: skip
     run_id = create_run(store, goal_set_id, config)
-    learner = subprocess.Popen(
-        [sys.executable, "-m", "learner.worker", "--once", "--name", "doomed"], cwd=ROOT, env=arm_env(settings, log),
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-    )  # fmt: skip
-    children: set[int] = set()
-    try:
-        wait_for(lambda: learner.poll() is not None or store.get_run(run_id=run_id).step >= 5, 120, "the run's steps")
-        assert learner.poll() is None, learner.communicate(timeout=30)[0].decode()
-        children = live_children(learner.pid)
-        assert children  # the actor (and multiprocessing's resource tracker)
-        learner.send_signal(signal.SIGKILL)
-        killed = time.monotonic()
-        wait_for(lambda: any(what == "hold" for what, _ in recorded(log)), 5, "the arm to be held")
-        held = next(at for what, at in recorded(log) if what == "hold")
-        assert held - killed < config.watchdog_seconds
-        wait_for(lambda: not any(is_running(pid) for pid in children), 10, "the actor to exit")
-        assert [at for what, at in recorded(log) if what == "action" and at > held] == []
-    finally:
-        if learner.poll() is None:
-            learner.kill()
-        for pid in children:  # (a failed check: nothing is left behind, and the learner's output ends)
-            with contextlib.suppress(OSError):
-                os.kill(pid, signal.SIGKILL)
-        output = learner.communicate(timeout=30)[0].decode()
-    assert f"arm {ActorState.LEARNER_GONE}" in output, output
+    env = arm_env(settings, log)
+    with robot_subprocess(env, ENV_ID, store, tmp_path / "robot.log") as robot:
+        learner = subprocess.Popen(
+            [sys.executable, "-m", "learner.worker", "--once", "--name", "doomed"], cwd=ROOT, env=env,
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        )  # fmt: skip
+        try:
+            wait_for(
+                lambda: learner.poll() is not None or store.get_run(run_id=run_id).step >= 5, 120, "the run's steps"
+            )
+            assert learner.poll() is None, learner.communicate(timeout=30)[0].decode()
+            learner.send_signal(signal.SIGKILL)
+            killed = time.monotonic()
+            wait_for(lambda: any(what == "hold" for what, _ in recorded(log)), 5, "the arm to be held")
+            held = next(at for what, at in recorded(log) if what == "hold")
+            assert held - killed < config.watchdog_seconds + 0.5  # (the last keep-alive crosses the store)
+            wait_for(
+                lambda: store.robot_process_of(env_id=ENV_ID).state == "waiting for a learner", 10,
+                "the robot's process to wait for the next learner",
+            )  # fmt: skip
+            time.sleep(1.0)
+            assert [at for what, at in recorded(log) if what == "action" and at > held] == []
+            assert robot.poll() is None
+        finally:
+            if learner.poll() is None:
+                learner.kill()
+            learner.communicate(timeout=30)
+    assert f"arm {ActorState.LEARNER_GONE}" in (tmp_path / "robot.log").read_text()
 
 
 def wait_for(condition: Callable[[], bool], seconds: float, what: str) -> None:
@@ -230,6 +220,8 @@ def test_a_database_outage_holds_the_arm_safe_until_a_person_resumes(tmp_path: P
         run_id = create_run(store, add_dot_goals(store), config)
         settings = Settings(data_dir=tmp_path, database_url=server.url, stale_heartbeat_seconds=60.0)
         learner = threading.Thread(target=work, args=(settings,), kwargs={"worker_name": "w", "once": True})
+        robot = robot_serving(store, ENV_ID, settings.checkpoint_dir)
+        robot.__enter__()
         learner.start()
         down = False
         try:
@@ -260,6 +252,7 @@ def test_a_database_outage_holds_the_arm_safe_until_a_person_resumes(tmp_path: P
                 server.start()
             store.request_stop(run_id=run_id)
             learner.join(timeout=180)
+            robot.__exit__(None, None, None)
         run = store.get_run(run_id=run_id)
         assert run.status == RunStatus.STOPPED, run.status_reason  # the actor never failed
         store.dispose()

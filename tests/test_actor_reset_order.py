@@ -131,6 +131,11 @@ def test_a_database_lock_while_the_actor_waits_on_it_between_episodes_does_not_r
         assert actor.process.is_alive(), "the actor took the learner for dead"
         assert store.robot_status(run_id=run_id).actor_state != ActorState.LEARNER_GONE
         wait_for(actor, lambda: store.robot_status(run_id=run_id).reset_needed, "the reset card again")
-        store.resume_robot(run_id=run_id)  # (had the actor held the arm for the store's silence)
-        store.scene_ready(run_id=run_id)
-        wait_for(actor, lambda: bool(actions(after=unlocked)), "an action after the lock")
+        store.resume_robot(run_id=run_id)  # (the actor held the arm for the store's silence: its writes waited)
+
+        def ready_when_asked() -> bool:  # (a Resume sends the arm home and asks for the scene again)
+            if store.robot_status(run_id=run_id).reset_needed:
+                store.scene_ready(run_id=run_id)
+            return bool(actions(after=unlocked))
+
+        wait_for(actor, ready_when_asked, "an action after the lock")

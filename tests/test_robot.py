@@ -1,6 +1,8 @@
 """The robot contract: a camera over OpenCV read from a video file, observations made like goal photos, actions
-clipped and limited in the env, stop() holding the arm and refusing actions, and the simulated pusher behind the
-contract as a stand-in robot that gymnasium's checker accepts."""
+clipped and limited in the env, moves refused unless the driver armed the env, stop() holding the arm and refusing
+actions, one "is it a robot" check for a class, a factory function and a wrapper, and the simulated pusher behind the
+contract as a stand-in robot that gymnasium's checker accepts. Where a test moves an arm it arms it first, as the
+robot's own process does once the store says it may."""
 
 import io
 import time
@@ -14,7 +16,7 @@ from gymnasium.utils.env_checker import check_env
 from PIL import Image
 
 from contract.images import decode_upload, model_view, prepare_upload
-from robot.base import RobotEnv, RobotStopped
+from robot.base import RobotEnv, RobotNotArmed, RobotStopped, is_robot
 from robot.camera import CameraError, OpenCVCamera
 
 COLOURS = [(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0)]
@@ -57,7 +59,7 @@ class RecordingArm(RobotEnv):
         rng = np.random.default_rng(0)
         self.frame = rng.integers(0, 256, size=(120, 160, 3), dtype=np.uint8)
         self.sent: list[np.ndarray] = []
-        self.holds = 0
+        self.holds = self.resets = 0
 
     def read_camera(self) -> np.ndarray:
         return self.frame
@@ -66,7 +68,7 @@ class RecordingArm(RobotEnv):
         self.sent.append(action)
 
     def reset_scene(self) -> None:
-        pass
+        self.resets += 1
 
     def hold_safe(self) -> None:
         self.holds += 1
@@ -77,6 +79,7 @@ class RecordingArm(RobotEnv):
 
 def test_actions_are_clipped_cleaned_and_limited_before_they_reach_the_arm() -> None:
     arm = RecordingArm()
+    arm.arm(seconds=60)
     arm.reset()
     arm.step(np.array([3.0, -7.0]))
     arm.step(np.array([np.nan, 0.25]))
@@ -100,6 +103,7 @@ def test_limit_action_is_told_the_time_since_the_previous_action_where_it_takes_
     """One control period for the first action after a reset, then the real interval; an override written without
     `seconds` (RecordingArm's) is called as before."""
     arm = TimedArm()
+    arm.arm(seconds=60)
     arm.reset()
     arm.step(np.zeros(2))
     time.sleep(0.05)
@@ -114,6 +118,7 @@ def test_limit_action_is_told_the_time_since_the_previous_action_where_it_takes_
 
 def test_the_observation_is_the_camera_frame_made_like_a_goal_photo() -> None:
     arm = RecordingArm()
+    arm.arm(seconds=60)
     observation, info = arm.reset()
     assert observation.shape == (32, 32, 3) and observation.dtype == np.uint8 and info == {}
     png = io.BytesIO()
@@ -128,19 +133,70 @@ def test_the_observation_is_the_camera_frame_made_like_a_goal_photo() -> None:
 
 def test_stop_holds_the_arm_and_refuses_actions_until_the_next_reset() -> None:
     arm = RecordingArm()
+    arm.arm(seconds=60)
     arm.reset()
     arm.stop()
     assert arm.holds == 1
     with pytest.raises(RobotStopped):
         arm.step(np.zeros(2))
     assert arm.sent == []
+    with pytest.raises(RobotNotArmed):  # (a stop disarms: the driver arms it again once the store says so)
+        arm.reset()
+    arm.arm(seconds=60)
     arm.reset()
     arm.step(np.zeros(2))
     assert len(arm.sent) == 1
 
 
+def test_a_robot_nobody_armed_refuses_every_move_and_its_close_touches_nothing() -> None:
+    """Made anywhere but by its driver (a preview, a lockstep runner, a script): reset and step raise before the arm
+    is touched, and closing it holds nothing; an arming runs out, and disarm ends it at once."""
+    arm = RecordingArm()
+    with pytest.raises(RobotNotArmed, match="raq robot"):
+        arm.reset()
+    arm.stopped = False  # (even past a reset's state, a step asks the same)
+    with pytest.raises(RobotNotArmed):
+        arm.step(np.zeros(2))
+    arm.stopped = True
+    arm.close()
+    assert arm.resets == 0 and arm.sent == [] and arm.holds == 0
+    arm = RecordingArm()
+    arm.arm(seconds=0.05)
+    arm.reset()
+    time.sleep(0.06)
+    with pytest.raises(RobotNotArmed):
+        arm.step(np.zeros(2))
+    arm.arm(seconds=60)
+    arm.step(np.zeros(2))
+    arm.disarm()
+    with pytest.raises(RobotNotArmed):
+        arm.step(np.zeros(2))
+    assert arm.resets == 1 and len(arm.sent) == 1
+
+
+def make_arm(**kwargs: object) -> RecordingArm:
+    """A robot registered through a factory function, as a lab wrapping its driver might."""
+    return RecordingArm()
+
+
+def test_is_robot_answers_for_a_class_a_made_env_under_wrappers_and_a_factory_functions_env() -> None:
+    assert is_robot(RecordingArm) and not is_robot(int) and not is_robot(None)
+    gym.register(id="LabWrappedArm-v0", entry_point=make_arm, max_episode_steps=10)
+    try:
+        env = gym.make("LabWrappedArm-v0")  # (a TimeLimit and an order enforcer around it)
+        assert is_robot(env) and env is not env.unwrapped
+        with pytest.raises(RobotNotArmed):
+            env.reset()
+        env.close()
+        assert env.unwrapped.resets == 0 and env.unwrapped.holds == 0
+        assert not is_robot(gym.make("CartPole-v1"))
+    finally:
+        del gym.registry["LabWrappedArm-v0"]
+
+
 def test_the_stand_in_pusher_is_a_robot_env_gymnasium_accepts() -> None:
     env = gym.make("robot.standin:PusherStandIn-v0", image_size=48, camera_size=96)
+    env.unwrapped.arm(seconds=600)
     check_env(env.unwrapped, skip_render_check=True)
     observation, info = env.reset(seed=0)
     assert observation.shape == (48, 48, 3) and info["success"] == 0.0

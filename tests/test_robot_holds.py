@@ -42,14 +42,15 @@ def test_a_second_run_of_the_robot_waits_until_the_first_lets_go(store: Store) -
     busy = store.take_robot(robot=ROBOT, run_id=second, claim=second_claim, holder="2@host")
     assert not busy.taken and busy.busy_with == first
     assert store.robot_holder(robot=ROBOT) == first
-    assert store.holds_robot(robot=ROBOT, holder="1@host") and not store.holds_robot(robot=ROBOT, holder="2@host")
+    assert store.may_move_robot(robot=ROBOT, holder="1@host").allowed
+    assert not store.may_move_robot(robot=ROBOT, holder="2@host").allowed
     # another robot on the same host is another row
     assert store.take_robot(robot=robot_name("other:Arm-v0"), run_id=second, claim=second_claim, holder="2@host").taken
     store.release_robot(robot=ROBOT, holder="2@host")  # (not its hold: nothing changes)
     assert store.robot_holder(robot=ROBOT) == first
     store.release_robot(robot=ROBOT, holder="1@host")
     assert store.take_robot(robot=ROBOT, run_id=second, claim=second_claim, holder="2@host").taken
-    assert not store.holds_robot(robot=ROBOT, holder="1@host")
+    assert not store.may_move_robot(robot=ROBOT, holder="1@host").allowed
 
 
 def test_a_hold_not_renewed_in_time_lapses_and_its_old_holder_may_not_move(store: Store) -> None:
@@ -57,14 +58,14 @@ def test_a_hold_not_renewed_in_time_lapses_and_its_old_holder_may_not_move(store
     second, second_claim = claimed_run(store, "second")
     assert store.take_robot(robot=ROBOT, run_id=first, claim=first_claim, holder="1@host").taken
     age_hold(store, MOVE_WITHIN_SECONDS + 0.5)
-    assert not store.holds_robot(robot=ROBOT, holder="1@host")  # too old to move on, still not free
+    assert not store.may_move_robot(robot=ROBOT, holder="1@host").allowed  # too old to move on, still not free
     assert not store.take_robot(robot=ROBOT, run_id=second, claim=second_claim, holder="2@host").taken
     assert store.renew_robot(robot=ROBOT, holder="1@host")
-    assert store.holds_robot(robot=ROBOT, holder="1@host")
+    assert store.may_move_robot(robot=ROBOT, holder="1@host").allowed
     age_hold(store, HOLD_LAPSES_SECONDS + 0.5)
     assert store.take_robot(robot=ROBOT, run_id=second, claim=second_claim, holder="2@host").taken
     assert not store.renew_robot(robot=ROBOT, holder="1@host")
-    assert not store.holds_robot(robot=ROBOT, holder="1@host")
+    assert not store.may_move_robot(robot=ROBOT, holder="1@host").allowed
 
 
 def test_an_actor_of_a_claim_taken_over_can_neither_renew_nor_take(store: Store) -> None:
@@ -73,7 +74,7 @@ def test_an_actor_of_a_claim_taken_over_can_neither_renew_nor_take(store: Store)
     with store.writing() as session:
         session.execute(update(Run).where(Run.id == run_id).values(heartbeat_at=store._db_now(120)))
     new_claim = store.claim_next_run(worker="learner-b").claim
-    assert not store.holds_robot(robot=ROBOT, holder="old@host")
+    assert not store.may_move_robot(robot=ROBOT, holder="old@host").allowed
     assert not store.renew_robot(robot=ROBOT, holder="old@host")
     assert store.take_robot(robot=ROBOT, run_id=run_id, claim=claim, holder="old@host").stale_claim
     # the new learner's actor waits until the old actor's hold lapses: it may still be finishing its last move

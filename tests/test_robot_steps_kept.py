@@ -1,5 +1,5 @@
-"""No robot step is lost when a learner dies: an actor's steps (beside its learner or on the robot's host) stay in
-the store until a checkpoint holds them, and the learner that takes the run over adds those taken after its
+"""No robot step is lost when a learner dies: an actor's steps (the robot's own process, `raq robot` or `raq actor`)
+stay in the store until a checkpoint holds them, and the learner that takes the run over adds those taken after its
 checkpoint to its replay, in order and once each, before the actor starts again."""
 
 import functools
@@ -76,12 +76,13 @@ def alive(pid: int) -> bool:
         return False
 
 
-@pytest.mark.parametrize("remote_actor", [False, True], ids=["actor-beside-its-learner", "remote-actor"])
+@pytest.mark.parametrize("remote_actor", [False, True], ids=["robot-process", "remote-actor"])
 def test_a_learner_that_takes_a_run_over_trains_on_every_step_the_robot_took(
     dot_reach: tuple[Settings, Store, int], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, remote_actor: bool
 ) -> None:
-    """The learner is SIGKILLed between two checkpoints; the robot went on until its actor held it (the actor beside
-    it then exits). The learner that takes the run over has every action the arm sent before it in its replay, in
+    """The learner is SIGKILLed between two checkpoints; the robot went on until its actor held it. The robot's
+    process (`raq robot`, or `raq actor --run ID` with remote_actor) drives the next learner. The learner that
+    takes the run over has every action the arm sent before it in its replay, in
     order, none twice; no process that drove the arm is left."""
     settings, store, goal_set_id = dot_reach
     log, actions_log = tmp_path / "arm.log", tmp_path / "actions.log"
@@ -100,12 +101,10 @@ def test_a_learner_that_takes_a_run_over_trains_on_every_step_the_robot_took(
     for name, value in {**arm, **modules}.items():  # (the second learner's actor, started from this process)
         monkeypatch.setenv(name, value)
     get_settings.cache_clear()
-    actor = None
-    if remote_actor:
-        actor = subprocess.Popen(
-            [sys.executable, "-m", "cli", "actor", "--run", str(run_id)], cwd=ROOT, env=env,
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-        )  # fmt: skip
+    serve = ["actor", "--run", str(run_id)] if remote_actor else ["robot", ARM_ID]
+    actor = subprocess.Popen(
+        [sys.executable, "-m", "cli", *serve], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT
+    )
     learner_log = (tmp_path / "learner.log").open("wb")
     learner = subprocess.Popen(
         [sys.executable, "-m", "learner.worker", "--once", "--name", "doomed"], cwd=ROOT, env=env,
@@ -129,9 +128,10 @@ def test_a_learner_that_takes_a_run_over_trains_on_every_step_the_robot_took(
         quick = settings.model_copy(update={"stale_heartbeat_seconds": STALE_SECONDS})
         assert learn_once_beside(quick, functools.partial(reset_and_answer, store, run_id)) == 0
         assert store.get_run(run_id=run_id).status == RunStatus.FINISHED
-        if actor is not None:
-            output = actor.communicate(timeout=30)[0].decode()
-        wait_until(lambda: not any(alive(pid) for pid in first_drivers), 10, "the first learner's actor to exit")
+        if not remote_actor:  # (`raq robot` serves the robot until it is stopped; `raq actor` ends with its run)
+            actor.send_signal(signal.SIGINT)
+        output = actor.communicate(timeout=30)[0].decode()
+        assert first_drivers == {actor.pid}  # the robot's own process drove it for both learners
         assert not any(alive(pid) for _, _, pid in calls_of(log)), "a process that drove the arm is left"
     finally:
         output = end_learner_and_actor(learner, actor, learner_log, output)

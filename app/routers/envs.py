@@ -13,9 +13,10 @@ from app.previews import PREVIEW_SIZES, preview_frames, suggested_env_ids
 from app.schemas import TaskSettingsOut, errors
 from app.views import task_settings_out
 from contract.config import DEVICE_PATTERN, robot_preset_for
-from contract.envs import SIM_ENV_IDS, control_rate, env_id_problem
+from contract.envs import SIM_ENV_IDS, env_id_problem
 from contract.settings import Settings
 from contract.store import Store
+from robot.base import control_rate
 
 router = APIRouter(prefix="/api/envs", tags=["envs"], responses=errors(401))
 

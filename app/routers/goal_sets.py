@@ -16,7 +16,6 @@ from app.camera import (
     PhotoDifference,
     camera_env_ids,
     cameras,
-    has_camera,
     photo_differences,
     viewpoint_difference,
 )
@@ -39,10 +38,11 @@ from app.schemas import (
     errors,
     row_with,
 )
-from contract.envs import SIM_ENV_IDS, env_class, module_allowed
+from contract.envs import SIM_ENV_IDS, module_allowed
 from contract.images import ImageRejected, PreparedImage, decode_upload, prepare_upload
 from contract.settings import Settings
 from contract.store import GoalSet, Store
+from robot.base import robot_class
 
 router = APIRouter(tags=["goal sets"], responses=errors(401))
 
@@ -253,7 +253,7 @@ def is_camera_env(env_id: str | None, settings: Settings) -> bool:
     if module is not None and not module_allowed(module, settings.env_modules):
         return False
     try:
-        if not has_camera(env_class(env_id)):
+        if robot_class(env_id) is False:
             return False
     except Exception:  # noqa: BLE001 - an id whose module does not import has no camera
         return False

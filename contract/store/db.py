@@ -22,6 +22,16 @@ server has dropped it, and the pool then opens a new one); one in steady use is 
 pinged on every checkout: one more round trip per request, +20 ms on the answers' p99 under bench/load.py."""
 SQLITE_LOCK_POLL_S = (0.0005, 0.005)
 """A writer waiting for another process's write lock retries after 0.5 ms, doubling up to 5 ms."""
+POOL_WAIT_S = 10.0
+"""The longest a caller waits for a free pooled connection."""
+POSTGRESQL_LINK_ARGS = {
+    "connect_timeout": 3,  # seconds to make a connection
+    "keepalives": 1, "keepalives_idle": 2, "keepalives_interval": 1, "keepalives_count": 3,
+    "tcp_user_timeout": 3000,  # ms that sent data may stay unacknowledged: a pulled cable ends the connection
+    "options": "-c statement_timeout=60000",  # ms: no statement runs for longer on the server
+}
+"""libpq's settings for every PostgreSQL connection: a dead link ends in seconds instead of TCP's minutes (code
+that moves a robot also bounds each call itself: contract/store/bounded.py)."""
 
 
 T = TypeVar("T")
@@ -135,7 +145,8 @@ def make_engine(url: str) -> Engine:
         engine = create_engine(url, connect_args={"timeout": SQLITE_BUSY_TIMEOUT_MS / 1000}, **pool)
         _configure_sqlite(engine)
         return engine
-    engine = create_engine(url, pool_size=POOL_SIZE, max_overflow=0)
+    engine = create_engine(url, pool_size=POOL_SIZE, max_overflow=0, pool_timeout=POOL_WAIT_S,
+                           connect_args=POSTGRESQL_LINK_ARGS)  # fmt: skip
     _ping_idle_connections(engine)
     return engine
 

@@ -20,6 +20,10 @@ class InvalidInput(StoreError):
     pass
 
 
+class StoreSilent(StoreError):
+    """The store did not answer within the bound a caller set (contract/store/bounded.py): it counts as away."""
+
+
 # What a database says while it is briefly away: a restart or failover (the connection drops, or none can be made),
 # a full disk, or another writer holding SQLite's lock past the busy timeout. The request or step may succeed later.
 TRANSIENT_MESSAGES = (
@@ -38,6 +42,8 @@ def is_transient(error: BaseException) -> bool:
     above, or a connection the pool found dropped): an OSError of anything else (a full checkpoint disk, an env's
     connection reset) is that thing's failure, never a blink."""
     for current in error_chain(error):
+        if isinstance(current, StoreSilent):
+            return True
         if isinstance(current, exc.DBAPIError) and current.connection_invalidated:
             return True
         if isinstance(current, exc.OperationalError | exc.InterfaceError | exc.DisconnectionError | exc.TimeoutError):

@@ -1,9 +1,10 @@
-"""Robot holds: at most one actor drives a robot, and only for the run's current claim.
+"""Robot holds: at most one actor drives a robot, and only for the run's current claim and while no Stop is pending.
 
-A robot is an env id on its host (`robot_name`). The actor that drives it takes its row (take_robot) before the
-first move, for the claim its learner holds the run with, and renews the row while it holds the robot
-(renew_robot, from its control thread); before each move it checks that it still holds it (holds_robot). A
-learner that takes a run over increases the run's claim (Store.claim_next_run): from then on the old actor's
+A robot is named by the lab, the same from every host and container (`robot_name`: its env id). The actor that
+drives it takes its row (take_robot) before the first move, for the claim its learner holds the run with, and
+renews the row while it holds the robot (renew_robot, from its control thread); before each move it checks that it
+still holds it and that no Stop is pending for its run (may_move_robot), and arms the robot's env for a moment on
+that answer alone. A learner that takes a run over increases the run's claim (Store.claim_next_run): from then on the old actor's
 renewals and checks fail, and it sends nothing more. Another run of the same robot takes the row only once it is
 released or HOLD_LAPSES_SECONDS old, so the old actor has stopped (its check allows a move only within
 MOVE_WITHIN_SECONDS of its last renewal). Times are the database's clock, never a host's.
@@ -16,9 +17,8 @@ from dataclasses import dataclass
 from sqlalchemy import delete, insert, or_, select, update
 from sqlalchemy.exc import IntegrityError
 
-from contract.settings import get_settings
 from contract.store.base import StoreBase
-from contract.store.models import RobotHold, Run, RunStatus
+from contract.store.models import RobotControl, RobotHold, Run, RunStatus
 
 CLAIMED_RUN_SECONDS = 60.0
 """A claimed run of an env whose learner beat within this many seconds is about to drive (or drives) its robot."""
@@ -29,13 +29,28 @@ MOVE_WITHIN_SECONDS = 1.0
 
 
 def robot_name(env_id: str) -> str:
-    """The robot an env id drives on this host: "<host>/<env id>" (the host: RAQ_ROBOT_HOST, else the hostname)."""
-    return f"{get_settings().robot_host or socket.gethostname()}/{env_id}"
+    """The robot an env id drives: the env id itself, whichever host asks (two arms of one kind are registered as
+    two env ids)."""
+    return env_id
 
 
 def holder_name() -> str:
     """This process as a holder: "<pid>@<host>"."""
     return f"{os.getpid()}@{socket.gethostname()}"
+
+
+@dataclass(frozen=True)
+class RobotMove:
+    """The answer to may_move_robot."""
+
+    held: bool
+    """The asker holds the robot for its run's current claim, renewed within MOVE_WITHIN_SECONDS."""
+    stop_pending: bool
+    """A person pressed Stop robot for the run that holds it, and nobody has pressed Resume since."""
+
+    @property
+    def allowed(self) -> bool:
+        return self.held and not self.stop_pending
 
 
 @dataclass(frozen=True)
@@ -93,19 +108,23 @@ class RobotHoldStore(StoreBase):
             ).rowcount
         return bool(renewed)
 
-    def holds_robot(self, *, robot: str, holder: str) -> bool:
-        """`holder` may move `robot` now: it holds it for the run's current claim, renewed within
-        MOVE_WITHIN_SECONDS."""
+    def may_move_robot(self, *, robot: str, holder: str) -> RobotMove:
+        """Whether `holder` may move `robot` now, in one read: it holds it for the run's current claim, renewed
+        within MOVE_WITHIN_SECONDS, and no Stop is pending for that run."""
         with self.reading() as session:
             row = session.execute(
-                select(RobotHold.robot)
+                select(RobotControl.stop_requested)
+                .select_from(RobotHold)
                 .join(Run, Run.id == RobotHold.run_id)
+                .outerjoin(RobotControl, RobotControl.run_id == RobotHold.run_id)
                 .where(
                     RobotHold.robot == robot, RobotHold.holder == holder, RobotHold.claim == Run.claim,
                     RobotHold.renewed_at >= self._db_now(MOVE_WITHIN_SECONDS),
                 )
             ).first()  # fmt: skip
-        return row is not None
+        if row is None:
+            return RobotMove(held=False, stop_pending=False)
+        return RobotMove(held=True, stop_pending=bool(row[0]))
 
     def release_robot(self, *, robot: str, holder: str) -> None:
         """`holder` lets go of `robot` (nothing when it holds it no longer)."""

@@ -1,5 +1,7 @@
 """Robot processes: the one process per robot (`raq robot ENV`, or `raq actor --run ID` for one run) that opens the
-robot's camera and moves its arm. It stamps its row (report_robot_process) every ROBOT_REPORT_SECONDS with its
+robot's camera and moves its arm. Its row is the robot's, one per robot whatever the host: a second process for a
+robot whose row another stamped within ROBOT_PROCESS_LIVE_SECONDS is refused (RobotServed, naming that one). It stamps
+its row (report_robot_process) every ROBOT_REPORT_SECONDS with its
 state and, when it has one, a new camera frame; a page that asks for the camera's frame marks the robot watched
 (watch_robot), and the process then publishes a frame every FRAME_WATCHED_SECONDS instead of every
 FRAME_IDLE_SECONDS. The web server reads frames from here (robot_process_of, robot_process_frame) and never opens
@@ -10,10 +12,11 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import delete, insert, select, update
+from sqlalchemy import delete, insert, or_, select, update
 
 from contract.store.actor_link import _age, _as_datetime
 from contract.store.base import StoreBase
+from contract.store.errors import Conflict
 from contract.store.models import RobotProcess
 from contract.store.robots import _checked_frame, _checked_state
 
@@ -27,6 +30,10 @@ FRAME_WATCHED_SECONDS = 0.2
 """How often a robot process publishes a frame while a page watches."""
 FRAME_IDLE_SECONDS = 2.0
 """How often it publishes one otherwise (so that the first request has a recent frame)."""
+
+
+class RobotServed(Conflict):
+    """Another live process serves the robot: this one must neither open its camera for the pages nor move it."""
 
 
 @dataclass(frozen=True)
@@ -50,14 +57,26 @@ class RobotProcessStore(StoreBase):
         self, *, robot: str, env_id: str, holder: str, state: str, frame_png: bytes | None = None
     ) -> RobotProcessStatus:
         """The robot process is up: its state and, optionally, its newest camera frame (PNG). The row is the
-        robot's: a process that starts on the robot takes it over. InvalidInput for a frame that is not a PNG."""
+        robot's: a process takes it when it is its own, missing, or not stamped within ROBOT_PROCESS_LIVE_SECONDS;
+        RobotServed when another process stamped it within that time. InvalidInput for a frame that is not a PNG."""
         values: dict[str, Any] = {"env_id": env_id, "holder": holder, "state": _checked_state(state),
                                   "seen_at": self._db_now()}  # fmt: skip
         frame = _checked_frame(frame_png)
         if frame is not None:
             values.update(frame_png=frame, frame_at=self._db_now())
         with self.writing() as session:
-            if not session.execute(update(RobotProcess).where(RobotProcess.robot == robot).values(**values)).rowcount:
+            ours_or_stale = or_(
+                RobotProcess.holder == holder, RobotProcess.seen_at < self._db_now(ROBOT_PROCESS_LIVE_SECONDS)
+            )
+            taken = session.execute(
+                update(RobotProcess).where(RobotProcess.robot == robot, ours_or_stale).values(**values)
+            ).rowcount
+            if not taken:
+                serving = session.scalar(select(RobotProcess.holder).where(RobotProcess.robot == robot))
+                if serving is not None:
+                    raise RobotServed(
+                        f"robot {robot} is served by process {serving}: one process per robot (stop that one first)"
+                    )
                 session.execute(insert(RobotProcess).values(robot=robot, **values))
         status = self._robot_process(robot=robot)
         assert status is not None

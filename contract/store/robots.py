@@ -21,8 +21,9 @@ from contract.store.models import Event, RobotControl, Run, RunStatus, SceneRese
 
 ROBOT_SEEN_SECONDS = 30.0
 """robot_runs lists the active runs whose actor reported within this many seconds."""
-ROBOT_LIVE_SECONDS = 5.0
-"""An actor that reported within this many seconds is live (it reports every control period, 0.2 s at 5 Hz)."""
+ROBOT_LIVE_SECONDS = 2.0
+"""An actor that reported within this many seconds is live (it reports every 0.05 s): a silent one shows within the
+actor's default watchdog time (TrainConfig.watchdog_seconds)."""
 ACTOR_STATE_MAX = 100
 """The longest actor state kept (a longer one is cut to this many characters)."""
 FRAME_MAX_BYTES = 8 * 1024 * 1024
