@@ -1,15 +1,15 @@
-"""The real-time runner: a robot (or any env given a control_hz) steps at its own rate in an actor that never
-waits for the learner; the learner takes the actor's steps as they come and runs SAC updates while none waits.
+"""The real-time runner: a robot (or any env given a control_hz) steps at its own rate in an actor that never waits for
+the learner; the learner takes the actor's steps as they come and runs SAC updates while none waits.
 
 A robot is driven only by its own process (`raq robot ENV`, learner/robot_process.py): the learner links to it and
-waits for it, never making the env; another env given a control_hz is stepped by a process the learner starts
-beside itself. Either is linked through the database and the checkpoint store (learner/actor_link.py). There are no
-evaluation envs: a robot is not opened twice. A person's Evaluate now episodes run on the robot itself and are asked about
-(learner/robot_evaluation.py).
+waits for it, never making the env; another env given a control_hz is stepped by a process the learner starts beside
+itself. Either is linked through the database and the checkpoint store (learner/actor_link.py). There are no
+evaluation envs: a robot is not opened twice. A person's Evaluate now episodes run on the robot itself and are asked
+about (learner/robot_evaluation.py).
 
-The actor's steps stay in the store until a checkpoint holds them: a learner that takes such a run over adds
-those after its checkpoint (an earlier learner's, or posted as it died) to its replay and its step count, in order,
-before the actor starts again, so that no step the robot took is lost.
+The actor's steps stay in the store until a checkpoint holds them: a learner that takes such a run over adds those
+after its checkpoint (an earlier learner's, or posted as it died) to its replay and its step count, in order, before
+the actor starts again, so that no step the robot took is lost.
 """
 
 import time

@@ -1,12 +1,12 @@
 """Robot holds: at most one actor drives a robot, and only for the run's current claim and while no Stop is pending.
 
 A robot is named by the lab, the same from every host and container (`robot_name`: its env id). The actor that
-drives it takes its row (take_robot) before the first move, for the claim its learner holds the run with, and
-renews the row while it holds the robot (renew_robot, from its control thread); before each move it checks that it
-still holds it and that no Stop is pending for its run (may_move_robot), and arms the robot's env for a moment on
-that answer alone. A learner that takes a run over increases the run's claim (Store.claim_next_run): from then on the old actor's
-renewals and checks fail, and it sends nothing more. Another run of the same robot takes the row only once it is
-released or HOLD_LAPSES_SECONDS old, so the old actor has stopped (its check allows a move only within
+drives it takes its row (take_robot) before the first move, for the claim its learner holds the run with, and renews
+the row while it holds the robot (renew_robot, from its control thread); before each move it checks that it still
+holds it and that no Stop is pending for its run (may_move_robot), and arms the robot's env for a moment on that
+answer alone. A learner that takes a run over increases the run's claim (Store.claim_next_run): from then on the old
+actor's renewals and checks fail, and it sends nothing more. Another run of the same robot takes the row only once
+it is released or HOLD_LAPSES_SECONDS old, so the old actor has stopped (its check allows a move only within
 MOVE_WITHIN_SECONDS of its last renewal). Times are the database's clock, never a host's.
 """
 
