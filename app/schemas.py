@@ -408,6 +408,11 @@ class RunDetail(RunOut):  # as RunOut, with config=run.config_values() and lates
         description="A real-time run's learner against its robot: SAC updates per robot step, and when it cannot "
         "keep up, why and what fits; None for a run in lockstep or still in its warm-up."
     )
+    robot: "RobotStatusOut | None" = Field(
+        default=None,
+        description="A real-time run's robot controls and what its actor last said (`live` false once it has been "
+        "silent the actor's watchdog time); None while no actor has reported for the run.",
+    )
 
 
 # ---------------------------------------------------------------- queries
@@ -545,6 +550,9 @@ class RobotStatusOut(RowOut):  # model_validate(row_with(robot_status, run_name=
             "live": age is not None and age <= ROBOT_LIVE_SECONDS,
             "camera_url": camera_url,
         }
+
+
+RunDetail.model_rebuild()  # (its `robot` is a RobotStatusOut)
 
 
 class EvaluateIn(InputModel):

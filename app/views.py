@@ -5,7 +5,15 @@ import json
 from pathlib import Path
 from typing import Any
 
-from app.schemas import EvaluatedPoliciesOut, EvaluatedPolicyOut, RunDetail, RunOut, TaskSettingsOut, row_with
+from app.schemas import (
+    EvaluatedPoliciesOut,
+    EvaluatedPolicyOut,
+    RobotStatusOut,
+    RunDetail,
+    RunOut,
+    TaskSettingsOut,
+    row_with,
+)
 from contract.algorithms import ALGORITHM_SPECS
 from contract.checkpoint_location import (
     BEST_POLICY_FILENAME,
@@ -20,7 +28,7 @@ from contract.effort import run_effort
 from contract.envs import SIM_TASK_SETTINGS
 from contract.learner_pace import run_pace
 from contract.settings import Settings
-from contract.store import Run, Store
+from contract.store import RobotStatus, Run, Store
 
 # The metrics a comparison may plot, served to the compare page (not retyped there).
 COMPARE_METRICS = {
@@ -57,7 +65,14 @@ def run_detail(store: Store, run: Run) -> RunDetail:
     }  # fmt: skip
     config = run.config_values()
     values["learner_pace"] = run_pace(store, run.id, config)
+    robot = store.robot_status(run_id=run.id)
+    values["robot"] = None if robot.actor_seen_at is None else robot_out(robot, run.name)
     return RunDetail.model_validate(row_with(run, **values, config=config), from_attributes=True)
+
+
+def robot_out(status: RobotStatus, run_name: str) -> RobotStatusOut:
+    """A run's robot controls as the API shows them."""
+    return RobotStatusOut.model_validate(row_with(status, run_name=run_name), from_attributes=True)
 
 
 def task_settings_out() -> dict[str, TaskSettingsOut]:

@@ -247,15 +247,17 @@ class Bench:
         self.without_hold += touched
         print(f"a second robot process on another host: exit code {code}, {touched} moves or holds", flush=True)
 
-    def robot_process_paused(self, robot: subprocess.Popen) -> subprocess.Popen:
-        """Fault 7: the robot's process SIGSTOPped until its row is stale, another takes the robot over, SIGCONT."""
+    def robot_process_paused(self, robot: subprocess.Popen, url: str) -> subprocess.Popen:
+        """Fault 7: the robot's process SIGSTOPped until its row is stale, a new one takes the robot's row (its
+        camera waits: the paused one still has it open), then SIGCONT: the paused one must let go and end. A person
+        resumes the arm if the store's silence left it stopped."""
         self.wait_for_moves(after=time.monotonic(), count=10)
         robot.send_signal(signal.SIGSTOP)
-        paused = time.monotonic()
         while self.store.robot_process_of(env_id=ENV_ID) is not None:
             time.sleep(0.2)
         successor = self.start("robot-2", "robot", ENV_ID, host="robotpc3")
-        self.wait_for_moves(after=paused, count=10)
+        while (serving := self.store.robot_process_of(env_id=ENV_ID)) is None or serving.holder.endswith("@robotpc"):
+            time.sleep(0.2)
         robot.send_signal(signal.SIGCONT)
         continued = time.monotonic()
         code = robot.wait(timeout=MOVING_SECONDS)
@@ -264,7 +266,8 @@ class Bench:
         self.without_hold += touched
         print(f"the robot's process paused and taken over: it exited {code}, {touched} moves or holds after SIGCONT",
               flush=True)  # fmt: skip
-        self.wait_for_moves(after=time.monotonic(), count=10)
+        request(f"{url}/api/runs/{self.run_id}/robot/resume", "POST")
+        self.wait_for_moves(after=continued, count=10)
         return successor
 
     def lock_database(self, seconds: float) -> None:
@@ -396,7 +399,7 @@ def main() -> int:
         bench.stop_through_a_learner_pause(url)
         if robot is not None:
             bench.second_robot_process()
-            bench.robot_process_paused(robot)
+            bench.robot_process_paused(robot, url)
     finally:
         done.set()
         with contextlib.suppress(Exception):

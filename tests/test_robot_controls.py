@@ -13,6 +13,7 @@ from fastapi.testclient import TestClient
 from PIL import Image
 from sqlalchemy import select, update
 
+from contract.config import TrainConfig
 from contract.store import Conflict, InvalidInput, NotFound, RobotStatus, RunStatus, Store
 from contract.store.models import Base, RobotControl, utcnow
 from contract.store.robots import EVALUATION_EPISODES_MAX
@@ -282,6 +283,18 @@ def test_the_api_stops_resumes_and_says_whether_the_actor_is_live(client: TestCl
     assert live["live"] is True and live["actor_state"] == "moving" and 0 <= live["actor_age_seconds"] < 5
     _age_actor(store, run_id, 6)
     assert client.get(f"/api/runs/{run_id}/robot").json()["live"] is False
+
+
+def test_the_runs_own_answer_shows_its_actor_silent_within_the_watchdog_time(client: TestClient, store: Store) -> None:
+    """GET /api/runs/{id} carries the robot's card once an actor reported: live while it reports, not live once it
+    has been silent longer than the actor's watchdog time (a paused or cut-off robot process)."""
+    run_id = _run(store)
+    assert client.get(f"/api/runs/{run_id}").json()["robot"] is None
+    store.report_actor(run_id=run_id, state="acting")
+    robot = client.get(f"/api/runs/{run_id}").json()["robot"]
+    assert robot["live"] is True and robot["actor_state"] == "acting"
+    _age_actor(store, run_id, TrainConfig().watchdog_seconds + 0.1)
+    assert client.get(f"/api/runs/{run_id}").json()["robot"]["live"] is False
 
 
 def test_ready_is_409_without_a_waiting_reset_and_counts_after_one(client: TestClient, store: Store) -> None:

@@ -5,7 +5,8 @@ for the pages."""
 from fastapi import APIRouter, HTTPException, Response
 
 from app.deps import ReadAuth, RunId, SameSiteRead, StoreDep, WriteAuth
-from app.schemas import WRITE_ERRORS, EvaluateIn, RobotStatusOut, errors, row_with
+from app.schemas import WRITE_ERRORS, EvaluateIn, RobotStatusOut, errors
+from app.views import robot_out as robot_status_out
 from contract.store import NotFound, RobotStatus, Store
 
 run_robot = APIRouter(prefix="/api/runs", tags=["robot"], responses=errors(401))
@@ -17,13 +18,12 @@ NO_STORE = {"Cache-Control": "no-store"}
 
 
 def robot_out(store: Store, status: RobotStatus) -> RobotStatusOut:
-    name = store.get_run(run_id=status.run_id).name
-    return RobotStatusOut.model_validate(row_with(status, run_name=name), from_attributes=True)
+    return robot_status_out(status, store.get_run(run_id=status.run_id).name)
 
 
 @run_robot.get("/{run_id}/robot", response_model=RobotStatusOut, responses=errors(404))
 def robot_status(run_id: RunId, store: StoreDep, _auth: ReadAuth) -> RobotStatusOut:
-    """The run's robot controls and what its actor last said (`live`: it reported within the last 5 s)."""
+    """The run's robot controls and what its actor last said (`live`: it reported within ROBOT_LIVE_SECONDS)."""
     return robot_out(store, store.robot_status(run_id=run_id))
 
 
