@@ -32,6 +32,7 @@ import argparse
 import csv
 import io
 import json
+import math
 import os
 import signal
 import subprocess
@@ -124,6 +125,7 @@ def evaluate_policies(policy_file: Path, out: Path, done_file: Path, image_size:
     torch.set_num_threads(1)
     os.nice(10)  # (the actor's period is what is measured)
     env = make_env(STANDIN, image_size=image_size, display_size=64)
+    env.unwrapped.arm(seconds=math.inf)  # (a simulation of its own for judging policies, not the robot: always armed)
     seen = -1
     while not done_file.exists():
         if not policy_file.exists():

@@ -246,9 +246,7 @@ class ActorLoop:
                     if self.store.renew_robot(robot=self.robot, holder=self.holder):
                         self.hold_confirmed_at = max(self.hold_confirmed_at, now)
                     else:
-                        self.hold_lost = True
-                        self._disarm()
-                        self.wake.set()
+                        self.lose_hold()
                     last_renewal = now
             png = None
             if self.frame is not None and now - last_frame >= FRAME_SECONDS:
@@ -270,6 +268,13 @@ class ActorLoop:
                     self._disarm()
                     self.wake.set()
             self.done.wait(CONTROL_POLL_SECONDS)
+
+    def lose_hold(self) -> None:
+        """The robot is this actor's no longer (its run claimed again, another process serving the robot): no move
+        from now on, and the loop lets go and ends."""
+        self.hold_lost = True
+        self._disarm()
+        self.wake.set()
 
     def _disarm(self) -> None:
         """No move from now until the store says yes again (robot/base.py's guard; other envs have none)."""

@@ -169,11 +169,8 @@ class RobotProcess:
         go of the arm without touching it, and this process ends."""
         print(f"robot {self.robot}: {why}; letting go of the arm", flush=True)
         self.displaced = f"displaced: {why}"
-        actor = self.actor
-        if actor is not None:
-            actor.hold_lost = True
-            actor._disarm()
-            actor.wake.set()
+        if self.actor is not None:
+            self.actor.lose_hold()
 
     # ------------------------------------------------------------------ a run
     def _run_config(self, run_id: int) -> TrainConfig:

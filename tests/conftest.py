@@ -7,6 +7,7 @@ import subprocess
 import sys
 import threading
 import time
+import uuid
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
@@ -18,6 +19,7 @@ import pytest
 from fastapi.testclient import TestClient
 from pg_server import PostgresServer, free_port
 from PIL import Image
+from sqlalchemy import create_engine, text
 
 from app.main import create_app
 from app.migrate import upgrade
@@ -84,6 +86,19 @@ def postgres_url() -> Iterator[str]:
     """A throw-away PostgreSQL server (tests/pg_server.py) that the test module shares: its database `raq`."""
     with PostgresServer.started() as server:
         yield server.url
+
+
+@pytest.fixture
+def fresh_postgres(postgres_url: str) -> Iterator[str]:
+    """A new, migrated database on the module's PostgreSQL server, for one test."""
+    name = f"raq_{uuid.uuid4().hex[:12]}"
+    admin = create_engine(postgres_url, isolation_level="AUTOCOMMIT")
+    with admin.connect() as connection:
+        connection.execute(text(f"CREATE DATABASE {name}"))
+    admin.dispose()
+    url = postgres_url.rsplit("/", 1)[0] + f"/{name}"
+    upgrade(url)
+    yield url
 
 
 @pytest.fixture

@@ -13,7 +13,6 @@ import socket
 import subprocess
 import sys
 import time
-import uuid
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -21,7 +20,7 @@ from pathlib import Path
 import pytest
 import torch
 from conftest import answer_at_once, free_port
-from sqlalchemy import create_engine, text
+from sqlalchemy import text
 from test_learner_run import tiny_config
 
 import contract.store.runs as store_module
@@ -76,19 +75,6 @@ def s3_env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]
                 os.environ[key] = value
         server.terminate()
         server.wait(timeout=10)
-
-
-@pytest.fixture
-def fresh_postgres(postgres_url: str) -> Iterator[str]:
-    """A new, migrated database on the module's PostgreSQL server, for one test."""
-    name = f"raq_{uuid.uuid4().hex[:12]}"
-    admin = create_engine(postgres_url, isolation_level="AUTOCOMMIT")
-    with admin.connect() as connection:
-        connection.execute(text(f"CREATE DATABASE {name}"))
-    admin.dispose()
-    url = postgres_url.rsplit("/", 1)[0] + f"/{name}"
-    upgrade(url)
-    yield url
 
 
 # ---------------------------------------------------------------- checkpoints in the bucket

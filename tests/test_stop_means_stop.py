@@ -20,7 +20,6 @@ import subprocess
 import sys
 import threading
 import time
-import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -28,10 +27,8 @@ from pathlib import Path
 import pytest
 from conftest import ROOT, create_run, learn_once_beside, robot_subprocess
 from recording_arm import ENV_ID, FACTORY_ENV_ID, LOG_VARIABLE, recorded_by
-from sqlalchemy import create_engine, text
 from test_actor import arm_env, real_time_config
 
-from app.migrate import upgrade
 from bench.processes import on_host
 from contract.settings import Settings, get_settings
 from contract.store import RunStatus, Store
@@ -244,21 +241,8 @@ class SilentProxy:
             server.close()
 
 
-@pytest.fixture
-def postgres_database(postgres_url: str) -> str:
-    """A new, migrated database on the module's PostgreSQL server."""
-    name = f"raq_{uuid.uuid4().hex[:12]}"
-    admin = create_engine(postgres_url, isolation_level="AUTOCOMMIT")
-    with admin.connect() as connection:
-        connection.execute(text(f"CREATE DATABASE {name}"))
-    admin.dispose()
-    url = postgres_url.rsplit("/", 1)[0] + f"/{name}"
-    upgrade(url)
-    return url
-
-
 def test_a_silent_store_link_ends_with_the_arm_held_within_the_watchdog_time(
-    postgres_database: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    fresh_postgres: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The robot's process reaches PostgreSQL through a proxy that stops forwarding mid-run (the learner reaches it
     directly): the arm is held within the watchdog time and moves no more; once the link is back it stays held
@@ -266,13 +250,13 @@ def test_a_silent_store_link_ends_with_the_arm_held_within_the_watchdog_time(
     log = tmp_path / "arm.log"
     monkeypatch.setenv("RAQ_ENV_MODULES", "learner.testing_envs,recording_arm")
     get_settings.cache_clear()
-    settings = Settings(_env_file=None, data_dir=tmp_path / "data", database_url=postgres_database)  # type: ignore[call-arg]
-    store = Store(postgres_database)
+    settings = Settings(_env_file=None, data_dir=tmp_path / "data", database_url=fresh_postgres)  # type: ignore[call-arg]
+    store = Store(fresh_postgres)
     run_id = a_run(store)
     watchdog = real_time_config().watchdog_seconds
-    host, port = postgres_database.split("@", 1)[1].split("/", 1)[0].split(":")
+    host, port = fresh_postgres.split("@", 1)[1].split("/", 1)[0].split(":")
     proxy = SilentProxy(int(port))
-    proxied = postgres_database.replace(f"{host}:{port}", f"127.0.0.1:{proxy.port}")
+    proxied = fresh_postgres.replace(f"{host}:{port}", f"127.0.0.1:{proxy.port}")
     try:
         with (
             robot_subprocess(arm_env(settings, log, proxied), ENV_ID, store, tmp_path / "robot.log"),
