@@ -77,14 +77,17 @@ CAMERA_RETRY_SECONDS = 0.25
 """How often it asks."""
 TAKE_RETRY_SECONDS = 0.5
 """How often an actor whose robot another run holds asks for it again."""
-STORE_ANSWER_SECONDS = 0.5
-"""The longest the actor waits for one answer of the store before it counts the store as away."""
+STORE_ANSWER_SECONDS = 0.3
+"""The longest the actor waits for one answer of the store before it counts the store as away (so the watchdog is
+looked at within about this long of its time, however the link fails)."""
 ARM_SECONDS = 0.5
 """How long the store's yes to a move arms the robot's env (counted from when the question was sent): a move the
 actor reaches later than this, after a pause of its process say, is refused."""
-HOLD_SURE_SECONDS = HOLD_LAPSES_SECONDS - 0.5
+HOLD_SURE_SECONDS = HOLD_LAPSES_SECONDS - 0.25
 """The hold is surely still this process's within this many seconds of a renewal the store confirmed (counted from
-when it was sent); later it may have lapsed and been taken, so the arm is let go of rather than held."""
+when it was sent, before the database stamped it); later it may have lapsed and been taken, so the arm is let go of
+rather than held. A silent store trips the watchdog (2 s) about 2.3 s after the last renewal it confirmed, and the
+loop sees it within STORE_ANSWER_SECONDS more: the arm is held, not let go."""
 
 
 def open_env(config: TrainConfig) -> gymnasium.Env:
