@@ -63,6 +63,8 @@ TASK = "pusher-standin"
 EVAL_EPISODES = 10
 """Episodes per evaluation of a written policy (by the env's ground truth)."""
 TARGET_RATE = 0.9
+LAST_EVALUATION_SECONDS = 180.0
+"""How long a finished seed waits for the evaluation of its last policy."""
 """Success by the env's ground truth that counts as learned."""
 TARGETS: dict[str, tuple[int, int]] = {"cpu_robot": (15_000, 50), "real_robot": (6_200, 25)}
 """Each preset's target: (env steps, queries) by which TARGET_RATE is to be reached. The CPU preset's is the
@@ -112,6 +114,17 @@ def wait_for_state(url: str, run_id: int, state: str, timeout: float) -> float |
 
 def read_evaluations(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+def wait_for_last_evaluation(store: Store, run_id: int, evaluations: Path, evaluator: subprocess.Popen) -> None:
+    """Until the policy the run ended with has been evaluated (at most LAST_EVALUATION_SECONDS): a run that ends at
+    its last step is judged on that step's policy too."""
+    deadline = time.monotonic() + LAST_EVALUATION_SECONDS
+    last = store.get_run(run_id=run_id).step
+    while time.monotonic() < deadline and evaluator.poll() is None:
+        if any(row["step"] >= last for row in read_evaluations(evaluations)):
+            return
+        time.sleep(1.0)
 
 
 # ---------------------------------------------------------------------- the separate evaluation process
@@ -231,6 +244,7 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
     processes = [subprocess.Popen(raq + ["serve", "--port", str(port)], env=env, stdout=logs["serve"],
                                   stderr=subprocess.STDOUT)]  # fmt: skip
     done, presses = threading.Event(), []
+    evaluator: subprocess.Popen | None = None
     figures: dict[str, object] = {
         "task": TASK, "seed": seed, "preset": preset, "steps": config.total_steps, "env_id": STANDIN,
         "actor": args.actor, "device": config.device, "image_size": config.image_size,
@@ -243,7 +257,8 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
         processes.append(subprocess.Popen(oracle, env=env, stdout=logs["oracle"], stderr=subprocess.STDOUT))
         evaluate = [sys.executable, __file__, "--evaluate", str(policy_file), str(evaluations), str(done_file),
                     str(config.image_size)]  # fmt: skip
-        processes.append(subprocess.Popen(evaluate, env=env, stdout=logs["evaluate"], stderr=subprocess.STDOUT))
+        evaluator = subprocess.Popen(evaluate, env=env, stdout=logs["evaluate"], stderr=subprocess.STDOUT)
+        processes.append(evaluator)
         # the robot's own process, sharing only the database and the checkpoint store with the learner
         actor = raq + (["actor", "--run", str(run.id)] if args.actor == "remote" else ["robot", STANDIN])
         processes.append(subprocess.Popen(actor, env=env, stdout=logs["actor"], stderr=subprocess.STDOUT))
@@ -264,6 +279,8 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
                 time.sleep(1.0)
     finally:
         done.set()
+        if evaluator is not None:
+            wait_for_last_evaluation(store, run.id, evaluations, evaluator)
         done_file.touch()
         stop_all(processes, signal.SIGINT, timeout=60)
         for log in logs.values():
