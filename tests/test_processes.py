@@ -11,7 +11,7 @@ import urllib.request
 from pathlib import Path
 from typing import IO
 
-from conftest import free_port
+from conftest import ROOT, create_run, free_port
 from sqlalchemy import func, select
 
 from contract.store import LoginFailure, Store
@@ -97,6 +97,41 @@ def test_raq_up_starts_the_robots_it_is_told_of_and_starts_one_again_after_a_cra
     assert "robot-1 | robot robot.standin:PusherStandIn-v0: interrupted: the arm is held safe" in output
     assert store.robot_process_of(env_id=standin) is None  # its row went with it
     store.dispose()
+
+
+def test_raq_up_starts_the_process_of_a_robot_whose_run_waits_for_it(tmp_path: Path) -> None:
+    """No RAQ_ROBOTS: a run of a robot env is created, raq up's learner claims it and waits (it never drives a robot
+    itself), and raq up starts the robot's own process on its host, which drives the run."""
+    from recording_arm import ENV_ID, LOG_VARIABLE, recorded_by  # noqa: PLC0415
+    from test_actor import real_time_config  # noqa: PLC0415
+
+    from learner.testing_envs import add_dot_goals  # noqa: PLC0415
+
+    arm_log = tmp_path / "arm.log"
+    settings = {
+        "RAQ_ENV_MODULES": "learner.testing_envs,recording_arm", "PYTHONPATH": str(ROOT / "tests"),
+        LOG_VARIABLE: str(arm_log), "OMP_NUM_THREADS": "1",
+    }  # fmt: skip
+    process, port, log = start_raq_up(tmp_path, "--learners", "1", settings=settings)
+    store = Store(f"sqlite:///{tmp_path / 'raq.sqlite3'}")
+    try:
+        wait_for_health(port, process)
+        config = real_time_config(env_id=ENV_ID, total_steps=100_000, reset_every_episode=False, episode_steps=30)
+        run_id = create_run(store, add_dot_goals(store), config)
+        deadline = time.monotonic() + 120
+        while store.get_run(run_id=run_id).step < 20:
+            assert time.monotonic() < deadline and process.poll() is None, (tmp_path / "up.log").read_text()
+            time.sleep(0.5)
+        robot = store.robot_process_of(env_id=ENV_ID)
+        assert robot is not None and robot.state == f"driving run {run_id}"
+        assert {pid for what, _, pid in recorded_by(arm_log) if what == "action"} == {int(robot.holder.split("@")[0])}
+    finally:
+        os.killpg(process.pid, signal.SIGINT)
+        process.wait(timeout=60)
+        log.close()
+        store.dispose()
+    output = (tmp_path / "up.log").read_text()
+    assert f"a run waits for robot {ENV_ID}; starting its process here" in output, output
 
 
 def server_workers(supervisor: int) -> list[int]:
