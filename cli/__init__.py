@@ -266,7 +266,7 @@ def cmd_up(args: argparse.Namespace) -> int:
             looked_at = time.monotonic()
             store = store or _store(settings)
             for env_id in _robots_to_start(store, settings, started={command[-1] for command in restarted.values()}):
-                prefix = f"robot-{len(restarted) + 1}"
+                prefix = f"robot-{sum(name.startswith('robot-') for name in restarted) + 1}"
                 print(f"raq up: a run waits for robot {env_id}; starting its process here", flush=True)
                 restarted[prefix], restarts[prefix] = raq + ["robot", env_id], LearnerRestarts()
                 start(prefix, restarted[prefix], learner_env)
