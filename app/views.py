@@ -66,11 +66,11 @@ def run_detail(store: Store, run: Run) -> RunDetail:
     config = run.config_values()
     values["learner_pace"] = run_pace(store, run.id, config)
     robot = store.robot_status(run_id=run.id)
-    values["robot"] = None if robot.actor_seen_at is None else robot_out(robot, run.name)
+    values["robot"] = None if robot.actor_seen_at is None else robot_status_out(robot, run.name)
     return RunDetail.model_validate(row_with(run, **values, config=config), from_attributes=True)
 
 
-def robot_out(status: RobotStatus, run_name: str) -> RobotStatusOut:
+def robot_status_out(status: RobotStatus, run_name: str) -> RobotStatusOut:
     """A run's robot controls as the API shows them."""
     return RobotStatusOut.model_validate(row_with(status, run_name=run_name), from_attributes=True)
 

@@ -6,7 +6,7 @@ from fastapi import APIRouter, HTTPException, Response
 
 from app.deps import ReadAuth, RunId, SameSiteRead, StoreDep, WriteAuth
 from app.schemas import WRITE_ERRORS, EvaluateIn, RobotStatusOut, errors
-from app.views import robot_out as robot_status_out
+from app.views import robot_status_out
 from contract.store import NotFound, RobotStatus, Store
 
 run_robot = APIRouter(prefix="/api/runs", tags=["robot"], responses=errors(401))

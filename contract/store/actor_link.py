@@ -21,11 +21,9 @@ from typing import Any
 from sqlalchemy import delete, func, insert, select
 
 from contract.store.base import StoreBase, found
-from contract.store.models import ActorMessage, RobotControl, RobotProcess, Run, RunStatus
+from contract.store.models import ActorMessage, RobotControl, Run, RunStatus
 from contract.store.robots import RobotStore
 
-ROBOT_WAIT_SECONDS = 5.0
-"""A robot process or an actor that reported within this many seconds is up (envs_awaiting_robot)."""
 LEARNER_LIVE_SECONDS = 1.0
 """A learner whose keep-alive (every 0.25 s) is younger than this has its link open now (runs_awaiting_actor)."""
 TAKE_MAX = 256
@@ -121,26 +119,6 @@ class ActorLinkStore(RobotStore, StoreBase):
             query = query.where(Run.id == run_id)
         with self.reading() as session:
             return [int(found_id) for found_id in session.scalars(query)]
-
-    def envs_awaiting_robot(self) -> list[str]:
-        """The env ids of active runs whose learner has the link open while no actor reports for them and no robot
-        process of that env is up: the robots whose own process somebody must start (`raq up` does, on its host)."""
-        served = select(RobotProcess.env_id).where(RobotProcess.seen_at >= self._db_now(ROBOT_WAIT_SECONDS))
-        query = (
-            select(Run.env_id)
-            .distinct()
-            .join(RobotControl, RobotControl.run_id == Run.id)
-            .where(
-                Run.status.in_(RunStatus.ACTIVE), RobotControl.learner_closed.is_(False),
-                RobotControl.learner_seen_at >= self._db_now(LEARNER_LIVE_SECONDS),
-                RobotControl.actor_seen_at.is_(None)
-                | (RobotControl.actor_seen_at < self._db_now(ROBOT_WAIT_SECONDS)),
-                Run.env_id.not_in(served),
-            )
-            .order_by(Run.env_id)
-        )  # fmt: skip
-        with self.reading() as session:
-            return list(session.scalars(query))
 
     def announce_actor(self, *, run_id: int, spaces: dict[str, Any]) -> None:
         """The actor is up: its action and observation spaces and its control rate, as JSON."""

@@ -14,10 +14,10 @@ from typing import Any
 
 from sqlalchemy import delete, insert, or_, select, update
 
-from contract.store.actor_link import _age, _as_datetime
+from contract.store.actor_link import LEARNER_LIVE_SECONDS, _age, _as_datetime
 from contract.store.base import StoreBase
 from contract.store.errors import Conflict
-from contract.store.models import RobotProcess
+from contract.store.models import RobotControl, RobotProcess, Run, RunStatus
 from contract.store.robots import _checked_frame, _checked_state
 
 ROBOT_REPORT_SECONDS = 1.0
@@ -81,6 +81,26 @@ class RobotProcessStore(StoreBase):
         status = self._robot_process(robot=robot)
         assert status is not None
         return status
+
+    def envs_awaiting_robot(self) -> list[str]:
+        """The env ids of active runs whose learner has the link open while no actor reports for them and no robot
+        process of that env is up: the robots whose own process somebody must start (`raq up` does, on its host)."""
+        served = select(RobotProcess.env_id).where(RobotProcess.seen_at >= self._db_now(ROBOT_PROCESS_LIVE_SECONDS))
+        query = (
+            select(Run.env_id)
+            .distinct()
+            .join(RobotControl, RobotControl.run_id == Run.id)
+            .where(
+                Run.status.in_(RunStatus.ACTIVE), RobotControl.learner_closed.is_(False),
+                RobotControl.learner_seen_at >= self._db_now(LEARNER_LIVE_SECONDS),
+                RobotControl.actor_seen_at.is_(None)
+                | (RobotControl.actor_seen_at < self._db_now(ROBOT_PROCESS_LIVE_SECONDS)),
+                Run.env_id.not_in(served),
+            )
+            .order_by(Run.env_id)
+        )  # fmt: skip
+        with self.reading() as session:
+            return list(session.scalars(query))
 
     def robot_process_ended(self, *, robot: str, holder: str) -> None:
         """The robot process exits: its row goes (when it is still that process's)."""
