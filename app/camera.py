@@ -6,7 +6,7 @@ learner can make) whose class, read from gymnasium's registry entry point withou
 `robot.base.RobotEnv` that implements `read_camera`.
 
 The server never opens a camera or makes a robot's env: the robot's own process (`raq robot ENV`,
-learner/robot_process.py) owns camera and arm and publishes frames to the store, often while a page watches (this
+robot/drive/process.py) owns camera and arm and publishes frames to the store, often while a page watches (this
 server says so, Store.watch_robot); while a run's actor drives the robot, its frames are the run's
 (Store.robot_runs). So a camera that opens in one process at a time (most USB cameras) serves the live view and a
 run at once, and no page can move or hold an arm.

@@ -53,7 +53,7 @@ from bench.processes import on_host, stop_all  # noqa: E402
 from bench.robot_standin import add_camera_goal_set, request, resetter  # noqa: E402
 from contract.config import TrainConfig  # noqa: E402
 from contract.store import RunStatus, Store  # noqa: E402
-from learner.robot_process import WAITING_FOR_LEARNER  # noqa: E402
+from robot.drive.process import WAITING_FOR_LEARNER  # noqa: E402
 
 STALE_SECONDS = 10.0
 """RAQ_STALE_HEARTBEAT_SECONDS of the learners: a silent learner's run is taken over after this long."""

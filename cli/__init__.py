@@ -66,10 +66,12 @@ def cmd_learn(args: argparse.Namespace) -> int:
 
 
 def _serve_robot(env_id: str | None, run_id: int | None) -> int:
-    """The robot's own process (learner/robot_process.py) until Ctrl-C, SIGTERM, or the one run it serves ends."""
+    """The robot's own process (robot/drive/process.py) until Ctrl-C, SIGTERM, or the one run it serves ends, its
+    actors acting with the learner's SAC policy."""
     settings = get_settings()
     from contract.store import Store
-    from learner.robot_process import serve_robot
+    from learner.acting import SAC_ACTING
+    from robot.drive.process import serve_robot
 
     def _interrupt(signum: int, _frame: object) -> None:
         raise KeyboardInterrupt
@@ -84,7 +86,9 @@ def _serve_robot(env_id: str | None, run_id: int | None) -> int:
     from contract.store.robot_processes import RobotServed
 
     try:
-        ended = serve_robot(store, env_id=env_id, checkpoint_base=settings.resolved_checkpoint_url, only_run=run_id)
+        ended = serve_robot(
+            store, env_id=env_id, checkpoint_base=settings.resolved_checkpoint_url, acting=SAC_ACTING, only_run=run_id
+        )
     except KeyboardInterrupt:
         ended = "interrupted: the arm is held safe"
     except RobotServed as error:  # (nothing was opened, nothing moved)

@@ -14,7 +14,7 @@ POLICY_FILENAME = "policy.pt"  # beside the checkpoint: the actor and its encode
 LAST_EVAL_POLICY_FILENAME = "policy-last-eval.pt"
 BEST_POLICY_FILENAME = "policy-best.pt"
 POLICIES_INDEX = "policies.json"  # {"last_eval": {"file", "step", "success_rate", "return"}, "best": {…}}
-ACTOR_POLICY_FILENAME = "actor-policy.pt"  # the newest pi for an actor on another host (learner/actor_link.py)
+ACTOR_POLICY_FILENAME = "actor-policy.pt"  # the newest pi for an actor on another host (learner/actor_handle.py)
 
 
 def is_remote(location: Path | str) -> bool:

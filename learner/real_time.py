@@ -1,9 +1,9 @@
 """The real-time runner: a robot (or any env given a control_hz) steps at its own rate in an actor that never waits for
 the learner; the learner takes the actor's steps as they come and runs SAC updates while none waits.
 
-A robot is driven only by its own process (`raq robot ENV`, learner/robot_process.py): the learner links to it and
+A robot is driven only by its own process (`raq robot ENV`, robot/drive/process.py): the learner links to it and
 waits for it, never making the env; another env given a control_hz is stepped by a process the learner starts beside
-itself. Either is linked through the database and the checkpoint store (learner/actor_link.py). There are no
+itself. Either is linked through the database and the checkpoint store (learner/actor_handle.py). There are no
 evaluation envs: a robot is not opened twice. A person's Evaluate now episodes run on the robot itself and are asked
 about (learner/robot_evaluation.py).
 
@@ -17,12 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
+from contract.actor_messages import ActorMessage, ActorSettings, EpisodeStart, StateChange, Transition
 from contract.config import TrainConfig
 from contract.learner_pace import PACE_METRIC
 from contract.store import Store
-from learner.actor import ActorSettings
-from learner.actor_link import ActorProcess, RemoteActor
-from learner.actor_messages import ActorMessage, EpisodeStart, StateChange, Transition
+from learner.actor_handle import ActorProcess, RemoteActor
 from learner.robot_evaluation import RobotEvaluation
 from learner.run_control import RunControl
 from learner.trainer import EnvEpisode, EnvStep, Trainer

@@ -1,6 +1,6 @@
 """Evaluate now on a robot run: a person asks for N episodes with the policy's mean action (the run page's robot
 card, or POST /api/runs/ID/robot/evaluate) and the actor takes them from the store one by one as its episodes
-begin (learner/actor.py); their steps carry the request's round.
+begin (robot/drive/actor.py); their steps carry the request's round.
 
 The learner stores those steps in the replay like any other (robot time is precious; SAC is off-policy) and, at
 each evaluation episode's end, asks the person about its last frame: a query of strategy "evaluation", outside
@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from contract.actor_messages import Transition
 from contract.config import EvaluationConfig, TaskConfig
 from contract.envs import encode_png, model_image, success_of
 from contract.store import AnsweredQuery, QueryStatus, Store
-from learner.actor_messages import Transition
 from learner.reward import RewardModel
 from learner.run_control import Counters, RunControl
 

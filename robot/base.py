@@ -3,7 +3,7 @@
 Subclass `RobotEnv` and write five methods: `read_camera`, `send_action`, `reset_scene`, `hold_safe` and,
 if the robot can tell, `read_success`. Only `send_action`, `reset_scene` and `hold_safe` move or hold the arm:
 `__init__` connects to the camera and the arm and never moves it, and `read_camera` only reads. One process drives
-the robot: its own (`raq robot ENV_ID`, learner/robot_process.py), which reads the camera for the pages between
+the robot: its own (`raq robot ENV_ID`, robot/drive/process.py), which reads the camera for the pages between
 runs and drives the run whose learner links to it.
 
 Armed, or it does not move: `reset()` and `step()` refuse (RobotNotArmed) unless the robot's driver armed the env
@@ -45,7 +45,7 @@ class RobotNotArmed(RuntimeError):
 class CameraBusy(OSError):
     """The camera is open in another process (most USB cameras open in one process at a time). Raise it from
     `__init__` when the camera cannot be opened for that reason: a run's actor then tries again for a while
-    (learner/actor.py CAMERA_BUSY_SECONDS)."""
+    (robot/drive/actor.py CAMERA_BUSY_SECONDS)."""
 
 
 class RobotEnv(gym.Env[np.ndarray, np.ndarray]):

@@ -317,14 +317,17 @@ STANDIN = "robot.standin:PusherStandIn-v0"
 
 @contextmanager
 def robot_serving(store: Store, env_id: str, checkpoint_base: Path | str) -> Iterator[None]:
-    """The robot's own process (learner/robot_process.py) on a thread of this process, up once its row is in the
+    """The robot's own process (robot/drive/process.py) on a thread of this process, up once its row is in the
     store; stopped (the arm held) at the end."""
-    from learner.robot_process import serve_robot  # noqa: PLC0415 - the robot tests only
+    from learner.acting import SAC_ACTING  # noqa: PLC0415 - the robot tests only
+    from robot.drive.process import serve_robot  # noqa: PLC0415
 
     stop = threading.Event()
     ended: list[str] = []
     thread = threading.Thread(
-        target=lambda: ended.append(serve_robot(store, env_id=env_id, checkpoint_base=str(checkpoint_base), stop=stop)),
+        target=lambda: ended.append(serve_robot(
+            store, env_id=env_id, checkpoint_base=str(checkpoint_base), acting=SAC_ACTING, stop=stop
+        )),
         name=f"robot {env_id}", daemon=True,
     )  # fmt: skip
     thread.start()

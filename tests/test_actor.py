@@ -24,10 +24,10 @@ from app.migrate import upgrade
 from contract.config import TrainConfig
 from contract.settings import Settings, get_settings
 from contract.store import RunStatus, Store
-from learner.actor import ActorState
 from learner.checkpoint import checkpoint_path, load_checkpoint
 from learner.testing_envs import add_dot_goals
 from learner.worker import work
+from robot.drive.actor import ActorState
 
 ROOT = Path(__file__).resolve().parent.parent
 HZ = 40.0

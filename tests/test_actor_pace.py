@@ -9,10 +9,10 @@ from conftest import create_run
 from recording_arm import LATE_ENV_ID, LATE_EVERY, LOG_VARIABLE, recorded
 from test_actor import real_time_config
 
+from contract.actor_messages import ActorSettings
 from contract.settings import Settings, get_settings
 from contract.store import Store
-from learner.actor import ActorSettings
-from learner.actor_link import ActorProcess
+from learner.actor_handle import ActorProcess
 
 HZ = 10.0
 

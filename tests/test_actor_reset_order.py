@@ -14,11 +14,12 @@ from fastapi.testclient import TestClient
 from recording_arm import ENV_ID, LOG_VARIABLE, recorded
 from test_actor import real_time_config
 
+from contract.actor_messages import ActorSettings
 from contract.settings import get_settings
 from contract.store import Store
-from learner.actor import ActorSettings, ActorState
-from learner.actor_link import ActorProcess
+from learner.actor_handle import ActorProcess
 from learner.testing_envs import add_dot_goals
+from robot.drive.actor import ActorState
 
 HZ = 10.0
 

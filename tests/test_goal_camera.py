@@ -1,6 +1,6 @@
 """Goals from the robot's own camera, through the API: the list of robot cameras, the live frame, Capture, and the
 check of an uploaded photo against the camera. The real stand-in robot served by its own process
-(learner/robot_process.py, on a thread here; MuJoCo rendering, MUJOCO_GL=egl by default) and the real SQLite store;
+(robot/drive/process.py, on a thread here; MuJoCo rendering, MUJOCO_GL=egl by default) and the real SQLite store;
 no mocks. The server never opens a camera: without the robot's process there is no frame."""
 
 import os

@@ -12,13 +12,13 @@ from recording_arm import ENV_ID, LOG_VARIABLE, recorded
 from sqlalchemy import update
 from test_actor import real_time_config
 
+from contract.actor_messages import ActorError, ActorSettings
 from contract.config import TrainConfig
 from contract.settings import Settings, get_settings
 from contract.store import Store
 from contract.store.models import Run
-from learner.actor import ActorSettings, ActorState
-from learner.actor_link import ActorProcess
-from learner.actor_messages import ActorError
+from learner.actor_handle import ActorProcess
+from robot.drive.actor import ActorState
 
 HZ = 10.0
 

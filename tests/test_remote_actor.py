@@ -20,13 +20,14 @@ from recording_arm import ENV_ID, LOG_VARIABLE, recorded
 from test_actor import real_time_config
 
 from app.migrate import upgrade
+from contract.actor_messages import PolicyWeights, Start, Transition, decode_message, encode_message
 from contract.checkpoint_location import ACTOR_POLICY_FILENAME
 from contract.settings import Settings
 from contract.store import NotFound, RunStatus, Store
-from learner.actor import ActorState
-from learner.actor_link import StoreLink, decode_message, encode_message
-from learner.actor_messages import PolicyWeights, Start, Transition
+from learner.acting import SAC_ACTING
 from learner.checkpoint import save_checkpoint
+from robot.drive.actor import ActorState
+from robot.drive.link import StoreLink
 
 ROOT = Path(__file__).resolve().parent.parent
 LINK_SLACK_SECONDS = 0.5
@@ -155,7 +156,7 @@ def test_an_actor_loads_no_policy_a_displaced_learner_wrote(link_store: Store, t
     run_id, old_claim, new_claim = taken_over(store)
     store.start_actor_link(run_id=run_id, claim=new_claim, start_step=40)
     policy_url = str(tmp_path / ACTOR_POLICY_FILENAME)
-    link = StoreLink(store, run_id=run_id, policy_url=policy_url, hz=5.0)
+    link = StoreLink(store, run_id=run_id, policy_url=policy_url, hz=5.0, read_weights=SAC_ACTING.read_weights)
     received: list[object] = []
 
     def receive(seconds: float) -> list[object]:

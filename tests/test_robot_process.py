@@ -1,4 +1,4 @@
-"""A robot's own process (learner/robot_process.py) and the learners of its env: a learner links to it whenever it is
+"""A robot's own process (robot/drive/process.py) and the learners of its env: a learner links to it whenever it is
 up and never makes the env itself; an error of the robot fails the run with that error, and the process holds the
 arm and serves the next run; it serves runs of other image sizes than it was made with."""
 

@@ -1,5 +1,5 @@
 """While the actor waits for the person's first scene reset, the reset card's live view is the robot camera's:
-the actor (learner/actor.py) of a stand-in robot run, before its env was ever reset, refreshes its frame from the
+the actor (robot/drive/actor.py) of a stand-in robot run, before its env was ever reset, refreshes its frame from the
 camera (rendered by MuJoCo) and would publish it to the store."""
 
 import os
@@ -8,9 +8,11 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np
 
+from contract.actor_messages import ActorSettings
 from contract.config import TrainConfig
 from contract.envs import display_image, make_env
-from learner.actor import ActorLoop, ActorSettings
+from learner.acting import SAC_ACTING
+from robot.drive.actor import ActorLoop
 
 STANDIN = "robot.standin:PusherStandIn-v0"
 
@@ -20,7 +22,7 @@ def test_before_the_first_reset_the_live_view_is_the_robot_camera(database_url: 
     settings = ActorSettings(
         config=config.to_dict(), run_id=1, database_url=database_url, control_hz=5.0, person_reset=True
     )
-    loop = ActorLoop(settings, connection=None, outbox=None)
+    loop = ActorLoop(settings, connection=None, outbox=None, acting=SAC_ACTING)
     try:
         assert loop.frame is None  # nothing seen yet: the env has not been reset
         loop._refresh_frame()

@@ -166,7 +166,9 @@ def test_a_learner_on_another_host_never_drives_and_a_second_robot_process_refus
 
 
 def test_a_robot_registered_by_a_factory_function_is_never_moved_by_the_server_or_the_learner(
-    arm: tuple[Settings, Store, Path], make_client, tmp_path: Path  # type: ignore[no-untyped-def]
+    arm: tuple[Settings, Store, Path],
+    make_client,
+    tmp_path: Path,  # type: ignore[no-untyped-def]
 ) -> None:
     """Its registration cannot say it is a robot. The New run form's preview answers with the robot's (grey) frame,
     the server's process touching nothing; a run of it created through the API trains through the robot's own

@@ -1,75 +1,57 @@
-"""The link between a learner and its real-time actor, through what the rest of the product shares: the database
-and the checkpoint store (a folder both mount, or object storage by URL). The actor runs beside its learner
-(`ActorProcess`, a child process) or in the robot's own process (`raq robot ENV`, on the robot's host while the
-learner trains on a GPU box, say);
-the link is the same, so that every step the robot takes is stored as it happens.
+"""The learner's end of its link with a real-time actor, through the database and the checkpoint store (a folder
+both mount, or object storage by URL); the actor's end is robot/drive/link.py, the wire contract/actor_messages.py.
 
-- The learner's end (`RemoteActor`; `ActorProcess` starts its actor first) opens the link, stamps a keep-alive four
-  times a second, writes each new pi to the checkpoint store (ACTOR_POLICY_FILENAME) and publishes its version, and
-  takes the actor's steps from the database in order; they stay there until a checkpoint holds them, so the learner
-  that takes a run over first takes those its checkpoint does not hold (`resume`).
-- The actor's end (`StoreLink`) gives learner/actor.py's `ActorLoop` the connection and outbox it expects: a thread
-  polls the link (new keep-alive, start, close, a newer policy: loaded from the checkpoint store between the steps)
-  and another posts the actor's messages, so the robot's clock never waits for the database.
-- `serve_child` is the actor beside its learner: it drives the robot for that learner only, and once the learner's
-  process is gone (its parent changes) it holds the arm and exits, its last steps posted first.
-- A robot's own process (learner/robot_process.py: `raq robot ENV`, `raq actor --run ID`) makes the robot's env
-  once and drives it for every learner that opens a link to it, holding the arm safe between them.
+A robot's actor is its own process's (`raq robot ENV`, robot/drive/process.py): the learner links to it
+(`RemoteActor`) and never drives the robot itself. A paced simulated env's actor runs beside its learner
+(`ActorProcess`, a child process running `serve_child`), linked the same way, so that every step is stored as it
+happens.
 
-The watchdog is the actor loop's: no keep-alive for `watchdog_seconds` (the learner died, or its host is cut off)
-or no answer from the database that long, and the arm is held safe.
+`RemoteActor` opens the link, stamps a keep-alive four times a second, writes each new pi to the checkpoint store
+(ACTOR_POLICY_FILENAME) and publishes its version, and takes the actor's steps from the database in order; they
+stay there until a checkpoint holds them, so the learner that takes a run over first takes those its checkpoint
+does not hold (`resume`). The watchdog is the actor's: no keep-alive for `watchdog_seconds` (the learner died, or
+its host is cut off) or no answer from the database that long, and the arm is held safe.
 """
 
 import contextlib
-import io
 import multiprocessing
 import os
-import queue
 import threading
 import time
 import traceback
 from collections import deque
-from collections.abc import Callable
 from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
-from gymnasium import spaces
-from PIL import Image
 
-from contract.checkpoint_location import ACTOR_POLICY_FILENAME, sibling
-from contract.envs import encode_png, jsonable
-from contract.store import Store, is_transient
-from learner.actor import KEEPALIVE_SECONDS, START_SECONDS, ActorLoop, ActorSettings
-from learner.actor_messages import (
+from contract.actor_messages import (
+    LINK_POLL_SECONDS,
     ActorError,
     ActorMessage,
-    Close,
     EpisodeStart,
     Failure,
-    KeepAlive,
-    PolicyWeights,
-    Ready,
-    Start,
     Transition,
-    message_items,
-    message_of,
+    decode_message,
+    driven_run,
+    raised,
+    spaces_of,
 )
-from learner.checkpoint import load_checkpoint, save_checkpoint
+from contract.checkpoint_location import ACTOR_POLICY_FILENAME, sibling
+from contract.store import Store, is_transient
+from learner.acting import SAC_ACTING
+from learner.checkpoint import save_checkpoint
+from robot.drive.actor import ActorLoop, ActorSettings
+from robot.drive.link import StoreLink
 
-LINK_POLL_SECONDS = 0.05
-"""How often each end reads the other's side of the link from the database."""
-POST_SECONDS = 0.02
-"""How often the actor's messages waiting to be posted go to the database (in one transaction)."""
+KEEPALIVE_SECONDS = 0.25
+"""How often the learner tells the actor it is alive (from a thread of its own: long updates do not delay it)."""
+START_SECONDS = 120.0
+"""How long an actor beside its learner may take to import its modules and make its env."""
 ACTOR_WAIT_SECONDS = 600.0
 """How long a learner waits for the robot's process (`raq robot ENV`) to take its run before the run fails."""
 ACTOR_LIVE_SECONDS = 5.0
 """An actor that reported within this many seconds is up."""
-
-
-def raised(traceback_text: str) -> str:
-    """What a formatted traceback says was raised: its last line ("RuntimeError: the gripper jammed")."""
-    return traceback_text.strip().splitlines()[-1]
 
 
 def waiting_for_robot(env_id: str) -> str:
@@ -80,197 +62,19 @@ def waiting_for_robot(env_id: str) -> str:
     )
 
 
-def driving(run_id: int) -> str:
-    """A robot's process's state while it drives a run's robot."""
-    return f"driving run {run_id}"
-
-
-def driven_run(state: str) -> int | None:
-    """The run a robot's process drives, from its state (`driving`); None: none."""
-    prefix, _, number = state.partition(driving(0)[:-1])
-    return int(number) if not prefix and number.isdigit() else None
-
-
-# ====================================================================== messages as rows
-def encode_message(message: Any) -> tuple[str, dict[str, Any], bytes | None, bytes | None]:
-    """One of the actor's messages (learner/actor_messages.py) as a row: its kind, its fields as JSON, and up to
-    two images as PNGs (the observation and the display view, lossless)."""
-    kind, items = message.kind, message_items(message)
-    images: list[bytes] = []
-
-    def encoded(value: Any) -> Any:
-        if isinstance(value, np.ndarray) and value.dtype == np.uint8 and value.ndim == 3:
-            images.append(encode_png(value))
-            return {"__image__": len(images) - 1}
-        if isinstance(value, np.ndarray):
-            return {"__array__": value.tolist(), "dtype": str(value.dtype)}
-        return jsonable(value)
-
-    payload = {"items": [encoded(item) for item in items]}
-    if len(images) > 2:
-        raise ValueError(f"an actor message holds at most two images, not {len(images)}")
-    images += [None] * (2 - len(images))  # type: ignore[list-item]
-    return kind, payload, images[0], images[1]
-
-
-def decode_message(kind: str, payload: dict[str, Any], observation: bytes | None, display: bytes | None) -> Any:
-    """The message `encode_message` stored."""
-    pngs = (observation, display)
-
-    def decoded(value: Any) -> Any:
-        if isinstance(value, dict) and "__image__" in value:
-            data = pngs[int(value["__image__"])]
-            assert data is not None
-            with Image.open(io.BytesIO(data)) as image:
-                return np.array(image.convert("RGB"))
-        if isinstance(value, dict) and "__array__" in value:
-            return np.asarray(value["__array__"], dtype=value["dtype"])
-        return value
-
-    return message_of(kind, [decoded(item) for item in payload["items"]])
-
-
-def spaces_json(action_space: spaces.Box, observation_space: spaces.Box, hz: float) -> dict[str, Any]:
-    """The actor's announcement: its action space (bounds per dimension), observation shape and control rate."""
-    return {
-        "action": {"low": action_space.low.tolist(), "high": action_space.high.tolist()},
-        "observation_shape": list(observation_space.shape),
-        "control_hz": float(hz),
-    }
-
-
-def spaces_of(announced: dict[str, Any]) -> tuple[spaces.Box, spaces.Box]:
-    action = announced["action"]
-    low, high = np.asarray(action["low"], np.float32), np.asarray(action["high"], np.float32)
-    observation = spaces.Box(0, 255, tuple(announced["observation_shape"]), np.uint8)
-    return spaces.Box(low, high, dtype=np.float32), observation
-
-
-# ====================================================================== the actor's end
-_LEARNER_GONE = object()
-
-
-class StoreLink:
-    """The actor's end: `connection` (poll, recv) has the learner's messages as a pipe would (EOFError once the
-    learner's process is gone); `outbox` (put) takes the actor's, posted by a thread of its own."""
-
-    def __init__(
-        self, store: Store, *, run_id: int, policy_url: str, hz: float, parent_pid: int | None = None,
-        announced: Callable[[], None] | None = None,
-    ) -> None:  # fmt: skip
-        """`parent_pid`: the learner's process, the actor's parent (an actor beside it), whose end is the learner's;
-        `announced()` is called once the actor's spaces are in the store."""
-        self.store, self.run_id, self.policy_url, self.hz = store, run_id, policy_url, hz
-        self.parent_pid, self.announced = parent_pid, announced
-        self.inbox: queue.Queue[Any] = queue.Queue()
-        self.outbox: queue.Queue[Any] = queue.Queue()
-        self.connection = self  # (poll and recv below)
-        self.closed = threading.Event()
-        self.started = False
-        self.learner_seen_at: Any = None
-        self.policy_version = 0
-        self.claim = -1  # (the run's claim when the learner started the actor)
-        self.threads = [
-            threading.Thread(target=self._poll_link, name="link-poll", daemon=True),
-            threading.Thread(target=self._post, name="link-post", daemon=True),
-        ]
-        for thread in self.threads:
-            thread.start()
-
-    def poll(self) -> bool:
-        return not self.inbox.empty()
-
-    def recv(self) -> Any:
-        message = self.inbox.get_nowait()
-        if message is _LEARNER_GONE:
-            raise EOFError("the learner's process is gone")
-        return message
-
-    def close(self) -> None:
-        """Stop both threads, the actor's last messages posted first."""
-        self.closed.set()
-        for thread in self.threads:
-            thread.join(timeout=5.0)
-
-    def _poll_link(self) -> None:
-        """The learner's side: a new keep-alive is a beat; then the start, a newer policy, the close."""
-        while not self.closed.wait(LINK_POLL_SECONDS):
-            if self.parent_pid is not None and os.getppid() != self.parent_pid:
-                self.inbox.put(_LEARNER_GONE)
-                return
-            with contextlib.suppress(Exception):  # the store away: no beats, and the watchdog holds the arm
-                link = self.store.actor_link(run_id=self.run_id)
-                if link.learner_seen_at is not None and link.learner_seen_at != self.learner_seen_at:
-                    self.learner_seen_at = link.learner_seen_at
-                    self.inbox.put(KeepAlive())
-                if link.start_step is not None and not self.started:
-                    self.started, self.claim = True, self.store.run_claim(run_id=self.run_id)
-                    self.inbox.put(Start(link.start_step, self.claim))
-                if self.started and link.policy_version > self.policy_version:
-                    self._load_policy(link.policy_version)
-                if link.learner_closed and self.started:
-                    self.inbox.put(Close())
-                    return
-
-    def _load_policy(self, published: int) -> None:
-        """The policy the store says is newest (version `published`), from the checkpoint store: taken when its
-        learner holds this actor's claim (a displaced learner may have written the file since)."""
-        state = load_checkpoint(self.policy_url)
-        if state is None:
-            return
-        if int(state.get("claim", -1)) != self.claim:
-            self.policy_version = published  # (the file is looked at again at the next version)
-            return
-        self.policy_version = max(published, int(state["version"]))
-        self.inbox.put(PolicyWeights(state["modules"]))
-
-    def _post(self) -> None:
-        """Post what waits in the outbox, in order, every POST_SECONDS (kept while the store is away); the actor's
-        Ready is its announcement."""
-        waiting: list[tuple[str, dict[str, Any], bytes | None, bytes | None]] = []
-        ready: Ready | None = None
-        while True:
-            closing = self.closed.wait(POST_SECONDS)
-            while True:
-                try:
-                    message = self.outbox.get_nowait()
-                except queue.Empty:
-                    break
-                if isinstance(message, Ready):
-                    ready = message
-                else:
-                    waiting.append(encode_message(message))
-            if ready is not None:
-                with contextlib.suppress(Exception):  # (asked again at the next post)
-                    spaces = spaces_json(ready.action_space, ready.observation_space, self.hz)
-                    self.store.announce_actor(run_id=self.run_id, spaces=spaces)
-                    ready = None
-                    if self.announced is not None:
-                        self.announced()
-            if waiting:
-                try:
-                    self.store.post_actor_messages(run_id=self.run_id, messages=waiting)
-                    waiting = []
-                except Exception:
-                    if closing:
-                        return
-            if closing:
-                return
-
-
 def serve_child(settings: ActorSettings, policy_url: str, parent_pid: int, started: Connection) -> None:
-    """The actor beside its learner, in a process of its own: drive the robot for that learner until it closes the
-    link or its process is gone (the arm held first), then end. `started` gets None once the actor is announced, or
+    """A paced simulated env's actor beside its learner, in a process of its own: step the env for that learner until
+    it closes the link or its process is gone, then end. `started` gets None once the actor is announced, or
     the traceback of why it could not start; a failure after that goes to the learner through the link.
 
     The process ends with os._exit once the link's last messages are posted: nothing it started may keep it alive."""
     code = 0
     link = StoreLink(
         Store(settings.database_url), run_id=settings.run_id, policy_url=policy_url, hz=settings.control_hz,
-        parent_pid=parent_pid, announced=lambda: started.send(None),
+        read_weights=SAC_ACTING.read_weights, parent_pid=parent_pid, announced=lambda: started.send(None),
     )  # fmt: skip
     try:
-        actor = ActorLoop(settings, link.connection, link.outbox)
+        actor = ActorLoop(settings, link.connection, link.outbox, SAC_ACTING)
     except Exception:
         with contextlib.suppress(Exception):
             started.send(traceback.format_exc())

@@ -1,9 +1,11 @@
 """The real-time actor: a robot env stepped at its own control rate in a process of its own, never waiting for
 the learner.
 
-The learner starts the actor (learner/actor_link.py: `ActorProcess` beside it, or `raq actor` on the robot's
-host, both linked through the store), sends it fresh policy weights every `policy_sync_seconds` and a keep-alive
-four times a second, and reads the actor's transitions as they come. The actor's loop, once per
+A robot's actor runs in the robot's own process (robot/drive/process.py); a paced simulated env's beside its
+learner (learner/actor_handle.py: `ActorProcess`). Either is linked to its learner through the store
+(robot/drive/link.py): the learner sends it fresh policy weights every `policy_sync_seconds` and a keep-alive four
+times a second, and reads the actor's transitions as they come. The actor acts with what the learner's side hands
+it (`Acting`: learner/acting.py's copy of pi, so that robot/ holds no network code). Its loop, once per
 control period (1 / control_hz seconds): act (uniformly at random until the warm-up's end or the first weights,
 then the policy, sampling), step the env, send the transition, and sleep to the next period (`Pace`: a late step is
 sent late and the period restarts from it, no catching up). Between episodes it sends the arm to its start pose
@@ -36,14 +38,10 @@ from typing import Any
 
 import gymnasium
 import numpy as np
-import torch
 
-from contract.config import TrainConfig
-from contract.envs import display_image, encode_png, make_env, model_image, scale_action
-from contract.store import Store
-from contract.store.bounded import BoundedStore
-from contract.store.robot_holds import HOLD_LAPSES_SECONDS, holder_name, robot_name
-from learner.actor_messages import (
+from contract.actor_messages import (
+    Acting,
+    ActorSettings,
     Close,
     EpisodeStart,
     PolicyWeights,
@@ -52,22 +50,21 @@ from learner.actor_messages import (
     StateChange,
     Transition,
 )
-from learner.exploration import EpisodeNoise, warm_up_action
-from learner.sac import SACAgent
+from contract.config import TrainConfig
+from contract.envs import display_image, encode_png, make_env, model_image, scale_action
+from contract.store import Store
+from contract.store.bounded import BoundedStore
+from contract.store.robot_holds import HOLD_LAPSES_SECONDS, holder_name, robot_name
 from robot.base import CameraBusy, RobotNotArmed, is_robot
 
 CONTROL_POLL_SECONDS = 0.05
 """How often the actor's control thread reads Stop, Resume and Ready from the store."""
 FRAME_SECONDS = 0.5
 """How often the actor publishes the camera's newest frame for the live view."""
-KEEPALIVE_SECONDS = 0.25
-"""How often the learner tells the actor it is alive (from a thread of its own: long updates do not delay it)."""
 ACTOR_NICENESS = -5
 """The actor's scheduling priority where the system allows it (root, or CAP_SYS_NICE): ahead of the learner."""
 LATE_SHARE = 0.1
 """A step later than this share of the control period after its tick is late: the period restarts from it."""
-START_SECONDS = 120.0
-"""How long the actor may take to import its modules and make (connect to) its env."""
 HOLD_RENEW_SECONDS = 0.25
 """How often the control thread renews the actor's hold on its robot (the hold allows moves for
 MOVE_WITHIN_SECONDS after each renewal)."""
@@ -126,19 +123,6 @@ EXIT_REASONS = (ActorState.LEARNER_GONE, ActorState.CLAIM_LOST, ActorState.CLOSE
 
 
 @dataclass
-class ActorSettings:
-    """What the actor process is started with."""
-
-    config: dict[str, Any]
-    """The run's TrainConfig as a dict (its networks, seed, warm-up, sizes)."""
-    run_id: int
-    database_url: str
-    control_hz: float
-    person_reset: bool
-    """Ask a person to reset the scene before every episode."""
-
-
-@dataclass
 class Controls:
     """The person's controls as the control thread last read them, how the store answered, and the Evaluate now
     round of the episode under way."""
@@ -188,14 +172,13 @@ class ActorLoop:
     """The actor's state in its process."""
 
     def __init__(
-        self, settings: ActorSettings, connection: Any, outbox: Any, env: gymnasium.Env | None = None,
-        reached: tuple[int, int] | None = None,
+        self, settings: ActorSettings, connection: Any, outbox: Any, acting: Acting,
+        env: gymnasium.Env | None = None, reached: tuple[int, int] | None = None,
     ) -> None:  # fmt: skip
         """`connection` (poll, recv) brings the learner's messages and `outbox` (put) takes the actor's: the ends of
-        its link through the store (learner/actor_link.py). `env`: one already
-        made (a remote actor keeps its robot between learners), else the run's env is made here. `reached`: the
+        its link through the store (robot/drive/link.py). `acting` makes the policy it acts with. `env`: one already
+        made (a robot's process keeps its robot between learners), else the run's env is made here. `reached`: the
         (claim, step) an earlier actor of the run reached; for the same claim the run goes on from there."""
-        torch.set_num_threads(1)
         with contextlib.suppress(OSError):  # the robot's clock before the learner's updates, where allowed
             os.setpriority(os.PRIO_PROCESS, 0, ACTOR_NICENESS)
         self.settings, self.connection, self.outbox = settings, connection, outbox
@@ -204,21 +187,13 @@ class ActorLoop:
         self.owns_env = env is None
         self.env: gymnasium.Env = env or open_env(cfg)
         self.action_space = self.env.action_space
-        self.agent = SACAgent.for_run(cfg, int(self.action_space.shape[0]))
-        self.generator = torch.Generator().manual_seed(cfg.seed)
-        self.noise = (  # coloured exploration noise per episode, from the generator; None: i.i.d. (SAC's)
-            EpisodeNoise(cfg.exploration_noise_beta, cfg.episode_steps, int(self.action_space.shape[0]), self.generator)
-            if cfg.exploration_noise_beta > 0
-            else None
-        )
-        self.rng = np.random.default_rng([cfg.seed, 1])
+        self.policy = acting.policy(cfg, int(self.action_space.shape[0]))
         # every call answers within STORE_ANSWER_SECONDS: a silent link reads as the store away, and the watchdog
         # holds the arm within watchdog_seconds however the link fails
         self.store = BoundedStore(Store(settings.database_url), seconds=STORE_ANSWER_SECONDS)
         self.period = 1.0 / settings.control_hz
         self.pace = Pace(self.period)
         self.step = 0  # (the learner's "start" says where the run is)
-        self.has_policy = False
         self.last_keepalive = time.monotonic()
         self.store_away = False  # the watchdog last found the store unreachable
         self.controls = Controls()
@@ -296,14 +271,13 @@ class ActorLoop:
                 self.exit_reason = ActorState.LEARNER_GONE
                 return
             if isinstance(message, PolicyWeights):
-                self._load_policy(message.modules)
+                self.policy.load(message.modules)
             elif isinstance(message, Start):
                 self.step, self.claim, self.started = int(message.step), int(message.claim), True
                 if self.reached is not None and self.reached[0] == self.claim:  # (driven again, same learner)
                     self.step = max(self.step, self.reached[1])
                 if self.step:  # a run taken over: its random actions go on from here, not again from the first
-                    self.generator.manual_seed(self.config.seed * 1_000_003 + self.step)
-                    self.rng = np.random.default_rng([self.config.seed, 1, self.step])
+                    self.policy.go_on_from(self.step)
             elif isinstance(message, Close):
                 self.exit_reason = ActorState.CLOSED
             self.last_keepalive = time.monotonic()
@@ -328,12 +302,6 @@ class ActorLoop:
             if self.exit_reason is not None or self.controls.last_answer - self.last_keepalive > limit:
                 return self.exit_reason or ActorState.LEARNER_GONE
         return None
-
-    def _load_policy(self, modules: dict[str, dict[str, Any]]) -> None:
-        for name, module in self.agent.modules().items():
-            if name in modules:
-                module.load_state_dict(modules[name])
-        self.has_policy = True
 
     # ------------------------------------------------------------------ the loop
     def run(self) -> None:
@@ -415,15 +383,8 @@ class ActorLoop:
             action = self._action(obs)
 
     def _action(self, obs: np.ndarray) -> np.ndarray:
-        """In an evaluation episode the policy's mean action; else uniformly random before the warm-up's end or the
-        first weights, then the policy's sample (both following the episode's coloured noise, when there is one)."""
-        if self.controls.evaluation_round is not None:
-            return self.agent.act_batch(obs[None], deterministic=True)[0]
-        noise = None if self.noise is None else self.noise.next()
-        if self.step < self.config.initial_random_steps or not self.has_policy:
-            return warm_up_action(noise, self.rng, int(self.action_space.shape[0]))
-        eps = None if noise is None else noise[None]
-        return self.agent.act_batch(obs[None], deterministic=False, generator=self.generator, noise=eps)[0]
+        """The acting policy's action: its mean in an evaluation episode, else its exploring one."""
+        return self.policy.act(obs, step=self.step, evaluation=self.controls.evaluation_round is not None)
 
     # ------------------------------------------------------------------ the robot's hold
     def _take_robot(self) -> bool:
@@ -570,8 +531,7 @@ class ActorLoop:
                 if look is not None:
                     raw, info = look()
                 break
-        if self.noise is not None:
-            self.noise.restart()
+        self.policy.episode_begins()
         self.controls.evaluation_round = None
         if self.controls.evaluation_pending > 0:  # (the store unreachable: a training episode, the arm held)
             with contextlib.suppress(Exception):

@@ -6,10 +6,11 @@ It makes the robot's env once, which never moves the arm (robot/base.py), and th
 - while no run drives the robot, publishes the camera's frame for the pages: every FRAME_WATCHED_SECONDS while a
   page watches, else every FRAME_IDLE_SECONDS. The web server shows these frames, previews them and captures goal
   photos from them; it never opens the camera itself;
-- drives the run whose learner opens the link (learner/actor_link.py: the actor loop of learner/actor.py over a
-  `StoreLink`), sized for that run, for as long as that learner keeps it; the arm is held safe between learners.
+- drives the run whose learner opens the link (the actor loop of robot/drive/actor.py over robot/drive/link.py's
+  `StoreLink`, acting with the policy the learner's side hands in: `Acting`), sized for that run, for as long as
+  that learner keeps it; the arm is held safe between learners.
 
-A learner of a robot env links to it (learner/real_time.py) and never drives the robot itself: without a robot
+A learner of a robot env links to it (learner/actor_handle.py) and never drives the robot itself: without a robot
 process its run waits, and says how to start one. One process serves a robot, whatever the host: a second one
 refuses to start and names the first (contract/store/robot_processes.py); one that finds, after a pause, that
 another took the robot over lets go of the arm, touching nothing, and ends. A run driven again (its learner was
@@ -24,6 +25,7 @@ import traceback
 import gymnasium as gym
 import numpy as np
 
+from contract.actor_messages import Failure, driving, encode_message
 from contract.checkpoint_location import ACTOR_POLICY_FILENAME, checkpoint_url, sibling
 from contract.config import TrainConfig
 from contract.envs import encode_png
@@ -36,10 +38,9 @@ from contract.store.robot_processes import (
     RobotProcessStatus,
     RobotServed,
 )
-from learner.actor import ActorLoop, ActorSettings, ActorState, open_env
-from learner.actor_link import StoreLink, driving, encode_message
-from learner.actor_messages import Failure
 from robot.base import control_rate, is_robot
+from robot.drive.actor import Acting, ActorLoop, ActorSettings, ActorState, open_env
+from robot.drive.link import StoreLink
 
 IDLE_SECONDS = 0.1
 """How often an idle robot process looks for a learner and for a page watching."""
@@ -50,9 +51,13 @@ WAITING_FOR_LEARNER = "waiting for a learner"
 class RobotProcess:
     """The robot's camera and arm, and which run drives them."""
 
-    def __init__(self, store: Store, *, env_id: str, checkpoint_base: str, only_run: int | None = None) -> None:
-        """`only_run`: drive that run only, and end when it ends (`raq actor --run ID`)."""
+    def __init__(
+        self, store: Store, *, env_id: str, checkpoint_base: str, acting: Acting, only_run: int | None = None
+    ) -> None:
+        """`acting`: how its actors act (learner/acting.py's SAC_ACTING); `only_run`: drive that run only, and end
+        when it ends (`raq actor --run ID`)."""
         self.store, self.env_id, self.checkpoint_base, self.only_run = store, env_id, checkpoint_base, only_run
+        self.acting = acting
         self.robot, self.holder = robot_name(env_id), holder_name()
         self.state = "opening the robot"
         self.stop = threading.Event()
@@ -210,9 +215,11 @@ class RobotProcess:
             )  # fmt: skip
             policy_url = sibling(checkpoint_url(self.checkpoint_base, run_id), ACTOR_POLICY_FILENAME)
             print(f"robot {self.robot}: driving run {run_id} for its learner", flush=True)
-            link = StoreLink(self.store, run_id=run_id, policy_url=policy_url, hz=hz)
+            link = StoreLink(
+                self.store, run_id=run_id, policy_url=policy_url, hz=hz, read_weights=self.acting.read_weights
+            )
             actor = self.actor = ActorLoop(
-                settings, link.connection, link.outbox, env=self.env, reached=self.reached.get(run_id)
+                settings, link.connection, link.outbox, self.acting, env=self.env, reached=self.reached.get(run_id)
             )
             actor.run()
         except Exception:
@@ -243,11 +250,11 @@ class RobotProcess:
 
 
 def serve_robot(
-    store: Store, *, env_id: str, checkpoint_base: str, only_run: int | None = None,
+    store: Store, *, env_id: str, checkpoint_base: str, acting: Acting, only_run: int | None = None,
     stop: threading.Event | None = None,
 ) -> str:  # fmt: skip
     """Run the robot's process (see the module) until `stop` is set, Ctrl-C, or `only_run` ends; why it ended."""
-    process = RobotProcess(store, env_id=env_id, checkpoint_base=checkpoint_base, only_run=only_run)
+    process = RobotProcess(store, env_id=env_id, checkpoint_base=checkpoint_base, acting=acting, only_run=only_run)
     if stop is not None:
         threading.Thread(target=lambda: (stop.wait(), process.stop.set()), daemon=True).start()
     return process.serve()
