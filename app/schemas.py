@@ -378,8 +378,11 @@ class EffortOut(BaseModel):
     )
     resets: int = Field(description="Scene resets done (Ready pressed).")
     reset_wait_seconds: float = Field(description="How long the robot waited for those resets, in all.")
+    takeovers: int = Field(description="Times the person drove the robot by hand.")
+    takeover_seconds: float = Field(description="How long they drove it by hand, in all.")
     person_minutes: float = Field(
-        description=f"The person's minutes in all: answering, plus each reset's wait capped at {RESET_CAP_SECONDS:g} s."
+        description=f"The person's minutes in all: answering, each reset's wait capped at {RESET_CAP_SECONDS:g} s, "
+        "and driving by hand."
     )
 
 
@@ -538,6 +541,11 @@ class RobotStatusOut(RowOut):  # model_validate(row_with(robot_status, run_name=
     camera_url: str | None = Field(description="The newest camera frame (PNG; the query changes with each frame).")
     evaluation_pending: int = Field(description="Episodes of Evaluate now that the actor has not begun.")
     evaluation_round: int = Field(description="How many times Evaluate now was pressed (the newest request's round).")
+    takeover_action: list[float] | None = Field(
+        description="The person's newest action while they drive the arm by hand (null: the policy drives)."
+    )
+    action_dims: int | None = Field(description="The robot's action dimensions (null before its actor announced).")
+    control_hz: float | None = Field(description="The robot's control rate (null before its actor announced).")
 
     @classmethod
     def derived(cls, status: Any) -> dict[str, Any]:
@@ -545,11 +553,22 @@ class RobotStatusOut(RowOut):  # model_validate(row_with(robot_status, run_name=
         camera_url = None
         if status.frame_at is not None:
             camera_url = f"/api/runs/{status.run_id}/robot/camera?v={round(status.frame_at.timestamp() * 1000)}"
+        spaces = status.actor_spaces
         return {
             "actor_age_seconds": age,
             "live": age is not None and age <= ROBOT_LIVE_SECONDS,
             "camera_url": camera_url,
+            "action_dims": None if spaces is None else len(spaces["action"]["low"]),
+            "control_hz": None if spaces is None else float(spaces["control_hz"]),
         }
+
+
+class DriveIn(InputModel):
+    """A person's action for a run's robot while they drive it by hand."""
+
+    action: list[Annotated[float, Field(ge=-1.0, le=1.0)]] = Field(
+        min_length=1, max_length=32, description="One number in [-1, 1] per action dimension (the policy's scale)."
+    )
 
 
 RunDetail.model_rebuild()  # (its `robot` is a RobotStatusOut)

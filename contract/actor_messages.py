@@ -103,6 +103,8 @@ class Transition:
     """Seconds since the previous step of the episode (None: its first)."""
     evaluation_round: int | None = None
     """A step of an evaluation episode: its Evaluate now round (None: a training step)."""
+    person: bool = False
+    """The person drove this step by hand (a take-over): `action` is theirs."""
 
     def outcome(self) -> tuple:
         """gymnasium's 5-tuple of the step."""

@@ -171,6 +171,9 @@ class SACConfig:
     exploration_noise_beta: float = bounded(1.0, 0, 2.0)
     """Colour of the acting policy's noise over an episode, power spectrum ~ 1/f^beta (Eberhard et al. 2023; the
     warm-up's actions too): 1 pink; 0 white, SAC's i.i.d. draws; 2 red."""
+    person_share: float = bounded(0.5, 0, 1)
+    """Share of each SAC batch drawn from the steps a person drove by hand, once there are any (HIL-SERL's demo
+    buffer, sampled half and half as RLPD does); the rest uniformly from the replay."""
     updates_per_step: int = bounded(2, 1, 100)
     """Gradient steps per environment step (with a real-time actor: at most this many; fewer when slower); 1: SAC's."""
     replay_capacity: int = bounded(200_000, 1, 10_000_000)

@@ -35,6 +35,9 @@ class DeviceReplay:
         self.size = torch.zeros((), dtype=torch.float32, device=device)
         """len(host) as a device scalar: samples read it at replay time, so a captured sample sees the buffer grow."""
         self.last_index = torch.zeros((), dtype=torch.int64, device=device)
+        self.person_index = torch.zeros(replay.capacity, dtype=torch.int64, device=device)
+        """The host's person_indices() in their first person_count places."""
+        self.person_count = torch.zeros((), dtype=torch.float32, device=device)
         self.frames_synced = 0
         self.added_synced = 0
 
@@ -55,6 +58,10 @@ class DeviceReplay:
                 getattr(self, name)[device_index] = self._to_device(getattr(host, name)[index])
             # sparse rewards read success(s'); a transition without it (env without info["success"]) reads 0
             self.success[device_index] = self._to_device(np.nan_to_num(host.success[index], nan=0.0))
+            person = host.person_indices()
+            if len(person):
+                self.person_index[: len(person)] = self._to_device(person)
+            self.person_count.fill_(float(len(person)))
         self.frames_synced, self.added_synced = host.frames_added, host.added
         self.size.fill_(float(len(host)))
         self.last_index.fill_(max(len(host) - 1, 0))
@@ -82,10 +89,16 @@ class DeviceReplay:
         columns = (torch.arange(width, device=self.device) + offsets[:, 1:]).clamp_(0, width - 1)
         return self.frames[slots[:, None, None], rows[:, :, None], columns[:, None, :]]
 
-    def sample(self, count: int, pad: int = 0) -> dict[str, torch.Tensor]:
+    def sample(self, count: int, pad: int = 0, person_share: float = 0.0) -> dict[str, torch.Tensor]:
         """A SAC batch: indices, shifted uint8 obs and next_obs, the un-shifted next_obs (what f_psi rewards, as
-        the host path's reward cache does), action, not_done, success."""
+        the host path's reward cache does), action, not_done, success. As the host's: `person_share` of it from the
+        transitions a person drove, once there are any (decided on the device, so a captured sample sees them)."""
         indices = self.sample_indices(count)
+        person = round(person_share * count)
+        if person:
+            picks = (torch.rand(person, device=self.device) * self.person_count).long()
+            picks = torch.minimum(picks, (self.person_count - 1).clamp(min=0).long())
+            indices[:person] = torch.where(self.person_count > 0, self.person_index[picks], indices[:person])
         next_slots = self.next_slot[indices]
         return {
             "indices": indices,

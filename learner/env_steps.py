@@ -37,6 +37,8 @@ class EnvStep(NamedTuple):
     episode: EnvEpisode
     action: np.ndarray
     outcome: tuple
+    person: bool = False
+    """A person drove the step by hand (a take-over): `action` is theirs."""
 
 
 def env_seed(seed: int, index: int) -> int:

@@ -82,10 +82,11 @@ class RealTimeRunner:
         self.updates_per_step = config.updates_per_step
         self.policy_sent_at = -np.inf
         self.periods: list[float] = []
+        self.person_steps: list[bool] = []  # (whether a person drove each step since the last record)
         self.paced_from = (0, 0)  # (env step, SAC updates) at the last record
         self.kept_from, self.kept_through = 0, 0  # (the checkpoint's step; the id of the newest message kept since)
         self.actor_started = False
-        trainer.metric_sources.extend([self._period_metrics, self._pace_metrics])
+        trainer.metric_sources.extend([self._period_metrics, self._pace_metrics, self._person_metrics])
         trainer.after_checkpoint.append(self._forget_checkpointed)
 
     def start(self, *, resumed: bool) -> None:
@@ -155,7 +156,9 @@ class RealTimeRunner:
                 if message.period is not None:
                     self.periods.append(message.period)
                 self.evaluation.take_step(message, env_step=trainer.counters.step + 1)
-                return [EnvStep(episode, np.asarray(message.action, dtype=np.float32), message.outcome())]
+                self.person_steps.append(message.person)
+                action = np.asarray(message.action, dtype=np.float32)
+                return [EnvStep(episode, action, message.outcome(), message.person)]
 
     def _send_policy(self) -> None:
         """pi's weights to the actor, every policy_sync_seconds once the warm-up is over."""
@@ -176,6 +179,15 @@ class RealTimeRunner:
         self.periods.clear()
         return {"actor/period_ms_mean": float(periods.mean()), "actor/period_ms_p99": float(np.percentile(periods, 99)),
                 "actor/period_ms_max": float(periods.max())}  # fmt: skip
+
+    def _person_metrics(self) -> dict[str, float]:
+        """The share of the robot's steps since the last record that a person drove by hand, and how many steps
+        they have driven in all (those the replay holds)."""
+        if not self.person_steps:
+            return {}
+        share = float(np.mean(self.person_steps))
+        self.person_steps.clear()
+        return {"person/step_share": share, "person/steps": float(len(self.trainer.replay.person_indices()))}
 
     def _pace_metrics(self) -> dict[str, float]:
         """SAC updates per robot step since the last record, over the steps after the warm-up (none is due

@@ -74,6 +74,8 @@ class ReplayBuffer:
         self.actions = np.zeros((capacity, action_dim), dtype=np.float32)
         self.not_done = np.zeros(capacity, dtype=np.float32)
         self.success = np.full(capacity, np.nan, dtype=np.float32)
+        self.person = np.zeros(capacity, dtype=bool)  # a person drove the step by hand (a take-over)
+        self._person_indices: tuple[int, np.ndarray] = (0, np.zeros(0, dtype=np.int64))  # (added, indices) cache
         # f_psi(s') per transition and the classifier version that computed it (-1: none)
         self.reward_cache = np.zeros(capacity, dtype=np.float32)
         self.reward_version = np.full(capacity, -1, dtype=np.int64)
@@ -90,21 +92,38 @@ class ReplayBuffer:
         self.frames_added += 1
         return slot
 
-    def add(self, obs_slot: int, action: np.ndarray, next_slot: int, terminated: bool, success: float | None) -> int:
-        """Store a transition between two stored frames; returns its index."""
+    def add(
+        self, obs_slot: int, action: np.ndarray, next_slot: int, terminated: bool, success: float | None,
+        person: bool = False,
+    ) -> int:  # fmt: skip
+        """Store a transition between two stored frames (`person`: a person drove it by hand); returns its index."""
         index = self.added % self.capacity
         self.obs_slot[index] = obs_slot
         self.next_slot[index] = next_slot
         self.actions[index] = action
         self.not_done[index] = 0.0 if terminated else 1.0
         self.success[index] = np.nan if success is None else success
+        self.person[index] = person
         self.reward_version[index] = -1
         self.added += 1
         return index
 
-    def sample(self, rng: np.random.Generator, batch_size: int, pad: int = 0) -> Batch:
-        """Uniform with replacement; s and s' shifted independently when pad > 0 (DrQ)."""
+    def person_indices(self) -> np.ndarray:
+        """The indices of the stored transitions a person drove by hand."""
+        added, indices = self._person_indices
+        if added != self.added:
+            indices = np.flatnonzero(self.person[: len(self)])
+            self._person_indices = (self.added, indices)
+        return indices
+
+    def sample(self, rng: np.random.Generator, batch_size: int, pad: int = 0, person_share: float = 0.0) -> Batch:
+        """Uniform with replacement, except that `person_share` of the batch (once there are any) comes from the
+        transitions a person drove (HIL-SERL's demo buffer); s and s' shifted independently when pad > 0 (DrQ)."""
         indices = rng.integers(0, len(self), size=batch_size)
+        person = self.person_indices() if person_share > 0 else ()
+        if len(person):
+            count = round(person_share * batch_size)
+            indices[:count] = person[rng.integers(0, len(person), size=count)]
         obs = self.frames[self.obs_slot[indices]]
         next_obs = self.frames[self.next_slot[indices]]
         if pad > 0:
@@ -136,6 +155,7 @@ class ReplayBuffer:
             "actions": torch.from_numpy(self.actions[:used]),
             "not_done": torch.from_numpy(self.not_done[:used]),
             "success": torch.from_numpy(self.success[:used]),
+            "person": torch.from_numpy(self.person[:used]),
             "frames_added": self.frames_added,
             "added": self.added,
         }
@@ -153,5 +173,7 @@ class ReplayBuffer:
         used = len(state["obs_slot"])
         for name in ("obs_slot", "next_slot", "actions", "not_done", "success"):
             getattr(self, name)[:used] = state[name].numpy()
+        if "person" in state:  # (checkpoints written before take-overs have none)
+            self.person[:used] = state["person"].numpy()
         self.frames_added, self.added = int(state["frames_added"]), int(state["added"])
         self.reward_version[:] = -1

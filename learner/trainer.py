@@ -110,7 +110,7 @@ class Trainer:
                 f"algorithm {cfg.algorithm!r} needs the env to report info['success']; {cfg.env_id} does not"
             )
         next_slot = self.replay.add_frame(next_obs)
-        self.replay.add(episode.obs_slot, step.action, next_slot, bool(terminated), success)
+        self.replay.add(episode.obs_slot, step.action, next_slot, bool(terminated), success, person=step.person)
         self._observe(episode.env, next_obs, info, success)  # before any reset: the display render is of s_{t+1}
         if terminated or truncated or episode.length >= cfg.episode_steps:
             self.finished_returns.append(episode.total)

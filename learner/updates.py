@@ -122,7 +122,7 @@ class HostUpdates:
         return "replay sampled on the host (numpy), rewards f_psi(s') cached per classifier version"
 
     def sac_update(self) -> None:
-        batch = self.replay.sample(self.rng, self.config.batch_size, self.pad)
+        batch = self.replay.sample(self.rng, self.config.batch_size, self.pad, self.config.person_share)
         rewards = self._rewards(batch.indices)
         metrics = self.agent.update_from_arrays(batch.obs, batch.action, rewards, batch.next_obs, batch.not_done)
         metrics["reward/batch_mean"] = float(rewards.mean())
@@ -248,7 +248,7 @@ class DeviceUpdates:
 
     def _sac_update_on_device(self) -> dict[str, torch.Tensor]:
         """Sample, shift, reward and update, all on the device (Alg. 2 lines 13-16)."""
-        batch = self.replay.sample(self.config.batch_size, self.pad)
+        batch = self.replay.sample(self.config.batch_size, self.pad, self.config.person_share)
         if self.reward_model is None:
             reward = batch["success"]
         else:  # r = f_psi(s') of the un-shifted s', as the host path's cache computes it

@@ -1,11 +1,12 @@
 // Run page: status and stats (every 2 s), curves from /api/runs/{id}/metrics?since_step=, rollout, queries, events;
 // for an active run whose actor drives a robot, the robot's card (camera, Stop robot / Resume, Ready: keys X, R;
-// Evaluate now).
+// Evaluate now) and its take-over by hand (takeover.js).
 import {
   api, el, fmtAge, fmtDuration, fmtNumber, fmtPercent, fmtSteps, fmtTime, isActive, poll, statusPill, toast,
 } from "/static/app.js";
 import { COLORS, LineChart } from "/static/charts.js";
 import { RobotCards } from "/static/queue.js";
+import { TakeOver } from "/static/takeover.js";
 
 const ROBOT_SHOWN_SECONDS = 30; // an actor that reported within this long has its card (as GET /api/robots lists)
 
@@ -135,18 +136,20 @@ function renderPace(pace) {
 }
 
 /** What the run has cost the person so far (the run's `effort`): answers and the time spent answering, resets and
- * the robot's wait for them, the person's minutes in all. */
+ * the robot's wait for them, the time they drove the robot by hand, the person's minutes in all. */
 function renderEffort(effort) {
   if (!effort) return;
   const minutes = (seconds) => `${(seconds / 60).toFixed(1)} min`;
   const parts = [
     `${effort.answers} answer${effort.answers === 1 ? "" : "s"} (${minutes(effort.answer_seconds)} answering)`,
     `${effort.resets} reset${effort.resets === 1 ? "" : "s"} (the robot waited ${minutes(effort.reset_wait_seconds)})`,
+    ...(effort.takeovers ? [`${effort.takeovers} take-over${effort.takeovers === 1 ? "" : "s"} ` +
+      `(${minutes(effort.takeover_seconds)} driving by hand)`] : []),
     `${effort.person_minutes.toFixed(1)} person-minutes in all`,
   ];
   const text = document.getElementById("effort-text");
   text.textContent = parts.join(" · ");
-  text.classList.toggle("muted", effort.answers === 0 && effort.resets === 0);
+  text.classList.toggle("muted", effort.answers === 0 && effort.resets === 0 && !effort.takeovers);
 }
 
 /** The run's robot, as a list of none or one for RobotCards: while the run is active and its actor reported lately. */
@@ -287,16 +290,21 @@ document.addEventListener("DOMContentLoaded", () => {
   document.getElementById("run-priority").addEventListener("change", (event) =>
     changeRun({ priority: Number(event.target.value) }));
   document.getElementById("delete-run").addEventListener("click", deleteRun);
+  const say = (kind, text) => toast(text, kind === "error" ? "error" : "info", kind === "error" ? 6000 : 3500);
+  const takeOver = new TakeOver(document.getElementById("takeover-area"), { say });
   const robots = new RobotCards(document.getElementById("robot-cards"), {
-    say: (kind, text) => toast(text, kind === "error" ? "error" : "info", kind === "error" ? 6000 : 3500),
+    say,
     onChange: (list) => {
       page.robotShown = list.length > 0;
       document.getElementById("robots").classList.toggle("hidden", list.length === 0);
+      takeOver.show(list.length ? list[0] : null);
     },
     evaluate: true,
   });
   robots.start(loadRobot);
-  document.addEventListener("keydown", (event) => robots.key(event));
+  document.addEventListener("keydown", (event) => {
+    if (robots.key(event) && event.key.toLowerCase() === "x") takeOver.show({ ...takeOver.robot, stop_requested: true });
+  });
   poll(refreshRun, 2000);
   poll(refreshMetrics, 2000);
   poll(refreshQueries, 4000);

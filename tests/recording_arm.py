@@ -1,15 +1,16 @@
-"""A robot for the watchdog's tests: DotReach's dot behind the robot contract (robot.base.RobotEnv), which writes
-every action it sends, every reset and every hold to a log with its time.
+"""A robot for the watchdog's tests: DotReach's dot behind the robot contract (robot.base.RobotEnv), which writes every
+action it sends, every reset and every hold to a log with its time.
 
 The log is the file that RECORDING_ARM_LOG names (nothing is written without it), one line per event:
 "<what> <time.monotonic()> <pid>", so a test reads, from its own process, when the actor's arm moved and when it
 was held, and by which process (Linux's monotonic clock is the same in every process); "limit <seconds>" lines say
-what `limit_action` was told. `make("recording_arm:RecordingArm-v0")` with RAQ_ENV_MODULES listing
-`recording_arm` and this folder on the path. `LateArm-v0` is the same arm whose every LATE_EVERY-th action takes
-1.3 control periods to send; `ExclusiveArm-v0` one whose camera opens in one process at a time (robot.base's
-CameraBusy for a second), as most USB cameras do; `JammingArm-v0` one whose JAM_AT-th action raises;
-`FactoryArm-v0` the recording arm registered through a factory function (`make_arm`), as a lab that wraps its
-driver might register it: its registration cannot say that it is a robot.
+what `limit_action` was told, "sent <number>" lines the first number of each action sent.
+`make("recording_arm:RecordingArm-v0")` with RAQ_ENV_MODULES listing `recording_arm` and this folder on the path.
+`LateArm-v0` is the same arm whose every LATE_EVERY-th action takes 1.3 control periods to send; `ExclusiveArm-v0`
+one whose camera opens in one process at a time (robot.base's CameraBusy for a second), as most USB cameras do;
+`JammingArm-v0` one whose JAM_AT-th action raises; `FactoryArm-v0` the recording arm registered through a factory
+function (`make_arm`), as a lab that wraps its driver might register it: its registration cannot say that it is a
+robot.
 """
 
 import os
@@ -56,6 +57,7 @@ class RecordingArm(RobotEnv):
 
     def send_action(self, action: np.ndarray) -> None:
         self._record("action")
+        self._record("sent", float(action[0]))  # (its first number: whose action it was)
         self.dot.step(action)
 
     def reset_scene(self) -> None:

@@ -85,6 +85,7 @@ def test_the_seeds_harness_runs_seeds_side_by_side_then_only_reports_them(tmp_pa
         store.dispose()
         assert {name: float(row[name]) for name in EFFORT_COLUMNS} == {
             "person_minutes": 0.0, "answers": answered, "answer_seconds": 0.0, "resets": 0, "reset_wait_seconds": 0.0,
+            "takeovers": 0, "takeover_seconds": 0.0,
         }  # fmt: skip
         assert answered > 0
 

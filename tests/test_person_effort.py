@@ -25,7 +25,8 @@ def test_the_run_counts_answers_answering_time_and_resets(
 ) -> None:
     run = client.post("/api/runs", json={"env_id": "VisualPusher-v0", "goal_set_id": goal_set_with_photo["id"]}).json()
     assert run["effort"] == {
-        "answers": 0, "answer_seconds": 0.0, "resets": 0, "reset_wait_seconds": 0.0, "person_minutes": 0.0,
+        "answers": 0, "answer_seconds": 0.0, "resets": 0, "reset_wait_seconds": 0.0, "takeovers": 0,
+        "takeover_seconds": 0.0, "person_minutes": 0.0,
     }  # fmt: skip
     first, second = (
         store.post_query(run_id=run["id"], env_step=step, model_png=_png(), display_png=_png(), score=0.0)
@@ -56,7 +57,7 @@ def test_the_run_counts_answers_answering_time_and_resets(
     # the bench scripts' columns, from the same store
     columns = run_effort(store, run["id"]).columns()
     assert list(columns) == list(EFFORT_COLUMNS) == [
-        "person_minutes", "answers", "answer_seconds", "resets", "reset_wait_seconds",
+        "person_minutes", "answers", "answer_seconds", "resets", "reset_wait_seconds", "takeovers", "takeover_seconds",
     ]  # fmt: skip
     assert columns["answers"] == 2 and columns["resets"] == 1
 

@@ -43,8 +43,10 @@ def test_a_run_nobody_touched_has_the_defaults_and_no_row(store: Store) -> None:
     run_id = _run(store)
     assert store.robot_status(run_id=run_id) == RobotStatus(
         run_id=run_id, stop_requested=False, reset_needed=False, reset_count=0, actor_state=None,
-        actor_seen_at=None, frame_at=None, evaluation_pending=0, evaluation_round=0,
+        actor_seen_at=None, frame_at=None, evaluation_pending=0, evaluation_round=0, takeover_action=None,
+        takeover_seq=0, actor_spaces=None,
     )  # fmt: skip
+    assert store.hand_back_robot(run_id=run_id).takeover_action is None  # nothing to hand back: nothing made
     assert store.camera_frame(run_id=run_id) is None
     assert store.take_evaluation_episode(run_id=run_id) is None  # nothing asked: nothing taken, nothing made
     assert store.resume_robot(run_id=run_id).stop_requested is False  # nothing to resume: nothing made
@@ -269,7 +271,8 @@ def test_the_api_stops_resumes_and_says_whether_the_actor_is_live(client: TestCl
     assert shown == {
         "run_id": run_id, "run_name": "", "stop_requested": False, "reset_needed": False, "reset_count": 0,
         "actor_state": None, "actor_seen_at": None, "actor_age_seconds": None, "live": False, "frame_at": None,
-        "camera_url": None, "evaluation_pending": 0, "evaluation_round": 0,
+        "camera_url": None, "evaluation_pending": 0, "evaluation_round": 0, "takeover_action": None,
+        "action_dims": None, "control_hz": None,
     }  # fmt: skip
     for _ in range(2):
         stopped = client.post(f"/api/runs/{run_id}/robot/stop")

@@ -1,11 +1,11 @@
 """A run's robot: what a person does for the actor that drives it in real time (Stop robot, Resume, Ready once
-the scene is reset, Evaluate now) and the actor's newest camera frame; GET /api/robots lists the robots at work,
-for the pages."""
+the scene is reset, Evaluate now, a take-over by hand) and the actor's newest camera frame; GET /api/robots lists
+the robots at work, for the pages."""
 
 from fastapi import APIRouter, HTTPException, Response
 
 from app.deps import ReadAuth, RunId, SameSiteRead, StoreDep, WriteAuth
-from app.schemas import WRITE_ERRORS, EvaluateIn, RobotStatusOut, errors
+from app.schemas import WRITE_ERRORS, DriveIn, EvaluateIn, RobotStatusOut, errors
 from app.views import robot_status_out
 from contract.store import NotFound, RobotStatus, Store
 
@@ -57,6 +57,23 @@ def evaluate_now(run_id: RunId, body: EvaluateIn, store: StoreDep, _auth: WriteA
     each becomes a question, and the share of yes answers is the round's eval/success_rate (409 while an earlier
     request still has episodes pending)."""
     return robot_out(store, store.request_evaluation(run_id=run_id, episodes=body.episodes))
+
+
+@run_robot.post(
+    "/{run_id}/robot/drive", response_model=RobotStatusOut, status_code=202, responses=errors(404, 409, *WRITE_ERRORS)
+)
+def drive_robot(run_id: RunId, body: DriveIn, store: StoreDep, _auth: WriteAuth) -> RobotStatusOut:
+    """Take over: the person's action, sent instead of the policy's by the robot's own process (same pace, action
+    limits, hold and Stop) for one control period from when it sees it. The page sends one every half period while
+    a key is held; once they stop coming the policy drives again. 409 while Stop robot is pending or before the
+    robot's actor has announced its action space; 422 for an action outside [-1, 1], 400 for one of the wrong length."""
+    return robot_out(store, store.drive_robot(run_id=run_id, action=body.action))
+
+
+@run_robot.post("/{run_id}/robot/hand-back", response_model=RobotStatusOut, responses=errors(404, *WRITE_ERRORS))
+def hand_back_robot(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RobotStatusOut:
+    """End a take-over: the policy drives again from the actor's next step."""
+    return robot_out(store, store.hand_back_robot(run_id=run_id))
 
 
 @run_robot.get(

@@ -297,6 +297,10 @@ class RobotControl(Base):
     # Evaluate now: episodes a person asked for that the actor has not begun, and how many times they asked
     evaluation_pending: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     evaluation_round: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    # a take-over: the person's newest action (None: the policy drives) and how many they sent in all (each new one
+    # is fresh for the actor for one control period from when it saw it)
+    takeover_action: Mapped[list[float] | None] = mapped_column(JSON)
+    takeover_seq: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
     # the link to an actor on another host: the learner's keep-alive, its newest policy in the checkpoint store,
     # the step its run starts at (None: not open), its close; the actor's action and observation spaces
     learner_seen_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
@@ -305,6 +309,18 @@ class RobotControl(Base):
     learner_closed: Mapped[bool] = mapped_column(Boolean, default=False, server_default=sa_false())
     actor_spaces: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class TakeoverSpan(Base):
+    """A stretch of time a person drove a run's robot by hand: from their first action to their last, the gaps
+    between actions shorter than TAKEOVER_GAP_SECONDS (contract/store/robots.py). Times are the database's clock."""
+
+    __tablename__ = "takeover_spans"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
+    started_at: Mapped[datetime] = mapped_column(UTCDateTime)
+    last_at: Mapped[datetime] = mapped_column(UTCDateTime)
 
 
 class RobotHold(Base):

@@ -7,18 +7,20 @@ holds it and that no Stop is pending for its run (may_move_robot), and arms the 
 answer alone. A learner that takes a run over increases the run's claim (Store.claim_next_run): from then on the old
 actor's renewals and checks fail, and it sends nothing more. Another run of the same robot takes the row only once
 it is released or HOLD_LAPSES_SECONDS old, so the old actor has stopped (its check allows a move only within
-MOVE_WITHIN_SECONDS of its last renewal). Times are the database's clock, never a host's.
+MOVE_WITHIN_SECONDS of its last renewal). While a robot's own process serves the robot (contract/store/
+robot_processes.py), only that process takes, renews or moves it: one paused until another took the robot over finds
+its hold gone when it continues, and lets go. Times are the database's clock, never a host's.
 """
 
 import os
 import socket
 from dataclasses import dataclass
 
-from sqlalchemy import delete, insert, or_, select, update
+from sqlalchemy import ColumnElement, delete, exists, insert, or_, select, update
 from sqlalchemy.exc import IntegrityError
 
 from contract.store.base import StoreBase
-from contract.store.models import RobotControl, RobotHold, Run, RunStatus
+from contract.store.models import RobotControl, RobotHold, RobotProcess, Run, RunStatus
 
 CLAIMED_RUN_SECONDS = 60.0
 """A claimed run of an env whose learner beat within this many seconds is about to drive (or drives) its robot."""
@@ -64,6 +66,11 @@ class RobotTake:
     """The run has been claimed again since: this actor must never drive it."""
 
 
+def not_served_by_another(robot: str, holder: str) -> ColumnElement[bool]:
+    """No robot process other than `holder` serves `robot` (its row names another process)."""
+    return ~exists().where(RobotProcess.robot == robot, RobotProcess.holder != holder)
+
+
 class RobotHoldStore(StoreBase):
     def run_claim(self, *, run_id: int) -> int:
         """The run's current claim."""
@@ -81,6 +88,7 @@ class RobotHoldStore(StoreBase):
                 .where(
                     RobotHold.robot == robot,
                     or_(RobotHold.holder == holder, RobotHold.renewed_at < self._db_now(HOLD_LAPSES_SECONDS)),
+                    not_served_by_another(robot, holder),
                 )
                 .values(**values)
             ).rowcount
@@ -89,6 +97,8 @@ class RobotHoldStore(StoreBase):
             busy_with = session.scalar(select(RobotHold.run_id).where(RobotHold.robot == robot))
             if busy_with is not None:
                 return RobotTake(taken=False, busy_with=int(busy_with))
+            if session.scalar(select(not_served_by_another(robot, holder))) is False:
+                return RobotTake(taken=False)  # (another robot process serves it: this one is ending)
         try:
             with self.writing() as session:
                 session.execute(insert(RobotHold).values(robot=robot, **values))
@@ -98,14 +108,17 @@ class RobotHoldStore(StoreBase):
 
     def renew_robot(self, *, robot: str, holder: str) -> bool:
         """Renew the hold `holder` has on `robot`, while its claim is the run's current one. False: it holds the
-        robot no longer (released, taken over, or its run claimed again)."""
+        robot no longer (released, taken over, its run claimed again, or another robot process serves the robot)."""
         current = select(Run.claim).where(Run.id == RobotHold.run_id).scalar_subquery()
         with self.autocommitting() as session:
             renewed = session.execute(
                 update(RobotHold)
-                .where(RobotHold.robot == robot, RobotHold.holder == holder, RobotHold.claim == current)
+                .where(
+                    RobotHold.robot == robot, RobotHold.holder == holder, RobotHold.claim == current,
+                    not_served_by_another(robot, holder),
+                )
                 .values(renewed_at=self._db_now())
-            ).rowcount
+            ).rowcount  # fmt: skip
         return bool(renewed)
 
     def may_move_robot(self, *, robot: str, holder: str) -> RobotMove:
@@ -119,7 +132,7 @@ class RobotHoldStore(StoreBase):
                 .outerjoin(RobotControl, RobotControl.run_id == RobotHold.run_id)
                 .where(
                     RobotHold.robot == robot, RobotHold.holder == holder, RobotHold.claim == Run.claim,
-                    RobotHold.renewed_at >= self._db_now(MOVE_WITHIN_SECONDS),
+                    RobotHold.renewed_at >= self._db_now(MOVE_WITHIN_SECONDS), not_served_by_another(robot, holder),
                 )
             ).first()  # fmt: skip
         if row is None:

@@ -1,9 +1,9 @@
 """Robots: the controls between a person and the actor that drives a run's robot in real time. One row per run
 (robot_controls, made on first use) holds the person's Stop robot / Resume, Ready (the scene is reset) and
-Evaluate now (episodes with the policy's mean action), and the actor's call for a reset, its state and its newest
-camera frame. The actor reports every control period
-(report_actor) and gets the controls back in the same round trip; the pages read them with robot_status and
-robot_runs. Times are the database's clock, never a host's.
+Evaluate now (episodes with the policy's mean action), a take-over (the person's newest action while they drive the
+arm by hand), and the actor's call for a reset, its state and its newest camera frame. The actor reports every
+control period (report_actor) and gets the controls back in the same round trip; the pages read them with
+robot_status and robot_runs. Times are the database's clock, never a host's.
 """
 
 from dataclasses import dataclass
@@ -17,7 +17,7 @@ from sqlalchemy.orm import Session
 
 from contract.store.base import StoreBase, found
 from contract.store.errors import Conflict, InvalidInput
-from contract.store.models import Event, RobotControl, Run, RunStatus, SceneReset
+from contract.store.models import Event, RobotControl, Run, RunStatus, SceneReset, TakeoverSpan
 
 ROBOT_SEEN_SECONDS = 30.0
 """robot_runs lists the active runs whose actor reported within this many seconds."""
@@ -31,6 +31,9 @@ FRAME_MAX_BYTES = 8 * 1024 * 1024
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 EVALUATION_EPISODES_MAX = 20
 """The most episodes one Evaluate now asks for."""
+TAKEOVER_GAP_SECONDS = 1.0
+"""A person's action within this many seconds of their previous one continues the same take-over (its time counts
+whole); a later one begins another."""
 
 
 @dataclass(frozen=True)
@@ -48,6 +51,12 @@ class RobotStatus:
     """Episodes of Evaluate now that the actor has not begun."""
     evaluation_round: int
     """How many times Evaluate now was pressed (the round of the newest request)."""
+    takeover_action: list[float] | None
+    """The person's newest action while they drive the arm by hand (None: the policy drives)."""
+    takeover_seq: int
+    """How many actions the person has sent: a new one is fresh for one control period from when the actor saw it."""
+    actor_spaces: dict[str, Any] | None
+    """The actor's action bounds, observation shape and control rate, as it announced them."""
 
 
 _STATUS_COLUMNS = (
@@ -60,15 +69,22 @@ _STATUS_COLUMNS = (
     RobotControl.frame_at,
     RobotControl.evaluation_pending,
     RobotControl.evaluation_round,
+    RobotControl.takeover_action,
+    RobotControl.takeover_seq,
+    RobotControl.actor_spaces,
 )
 
 
 def _status(row: Any) -> RobotStatus:
-    run_id, stop_requested, reset_needed, reset_count, actor_state, actor_seen_at, frame_at, pending, round_ = row
+    (
+        run_id, stop_requested, reset_needed, reset_count, actor_state, actor_seen_at, frame_at, pending, round_,
+        takeover_action, takeover_seq, actor_spaces,
+    ) = row  # fmt: skip
     return RobotStatus(
         run_id=run_id, stop_requested=bool(stop_requested), reset_needed=bool(reset_needed),
         reset_count=int(reset_count), actor_state=actor_state, actor_seen_at=actor_seen_at, frame_at=frame_at,
-        evaluation_pending=int(pending), evaluation_round=int(round_),
+        evaluation_pending=int(pending), evaluation_round=int(round_), takeover_action=takeover_action,
+        takeover_seq=int(takeover_seq or 0), actor_spaces=actor_spaces,
     )  # fmt: skip
 
 
@@ -76,7 +92,8 @@ def _no_controls(run_id: int) -> RobotStatus:
     """A run whose robot nobody has touched yet: not stopped, no reset waiting, no actor seen."""
     return RobotStatus(
         run_id=run_id, stop_requested=False, reset_needed=False, reset_count=0, actor_state=None,
-        actor_seen_at=None, frame_at=None, evaluation_pending=0, evaluation_round=0,
+        actor_seen_at=None, frame_at=None, evaluation_pending=0, evaluation_round=0, takeover_action=None,
+        takeover_seq=0, actor_spaces=None,
     )  # fmt: skip
 
 
@@ -99,6 +116,14 @@ def _checked_frame(frame_png: bytes | None) -> bytes | None:
     if len(frame) > FRAME_MAX_BYTES:
         raise InvalidInput(f"a camera frame of {len(frame):,} bytes is larger than {FRAME_MAX_BYTES:,} bytes")
     return frame
+
+
+def _checked_action(action: list[float], dims: int) -> None:
+    if not isinstance(action, list | tuple) or len(action) != dims:
+        raise InvalidInput(f"a take-over's action has {dims} numbers, one per action dimension")
+    for value in action:
+        if isinstance(value, bool) or not isinstance(value, int | float) or not -1.0 <= float(value) <= 1.0:
+            raise InvalidInput(f"a take-over's action holds numbers in [-1, 1], not {value!r}")
 
 
 class RobotStore(StoreBase):
@@ -197,6 +222,64 @@ class RobotStore(StoreBase):
             )  # fmt: skip
         return None if status is None else status.evaluation_round
 
+    def drive_robot(self, *, run_id: int, action: list[float]) -> RobotStatus:
+        """A person's action for the run's robot (a take-over: the page sends one every half control period while a
+        key is held). The actor sends it instead of the policy's, through the same pace, limits, hold and Stop,
+        while it is fresh. Conflict while Stop robot is pending (a Stop ends a take-over) or before an actor has
+        announced its action space; InvalidInput for an action of the wrong length or outside [-1, 1] (nothing is
+        stored then)."""
+        with self.writing() as session:
+            current = self._controls_row(session, run_id=run_id, create=False)
+            if current.stop_requested:
+                raise Conflict(f"run {run_id}'s robot is stopped: press Resume before taking over")
+            if current.actor_spaces is None:
+                raise Conflict(f"run {run_id} has no actor yet: its robot cannot be driven by hand")
+            dims = len(current.actor_spaces["action"]["low"])
+            _checked_action(action, dims)
+            status = self._update(
+                session, run_id=run_id,
+                values={"takeover_action": [float(value) for value in action],
+                        "takeover_seq": RobotControl.takeover_seq + 1},
+                condition=RobotControl.stop_requested.is_(False),
+            )  # fmt: skip
+            if status is None:  # (stopped meanwhile)
+                raise Conflict(f"run {run_id}'s robot is stopped: press Resume before taking over")
+            self._extend_takeover(session, run_id=run_id)
+            return status
+
+    def hand_back_robot(self, *, run_id: int) -> RobotStatus:
+        """The person let go of the keys: the policy drives again from the actor's next step. Without a take-over
+        it changes nothing."""
+        with self.writing() as session:
+            self._controls_row(session, run_id=run_id, create=False)
+            status = self._update(session, run_id=run_id, values={"takeover_action": None})
+            return status if status is not None else _no_controls(run_id)
+
+    def takeover_times(self, *, run_id: int) -> list[tuple[datetime, datetime]]:
+        """(first action, last action) of each take-over of the run, oldest first."""
+        with self.reading() as session:
+            rows = session.execute(
+                select(TakeoverSpan.started_at, TakeoverSpan.last_at)
+                .where(TakeoverSpan.run_id == run_id)
+                .order_by(TakeoverSpan.id)
+            ).all()
+        return [(started, last) for started, last in rows]
+
+    def _extend_takeover(self, session: Session, *, run_id: int) -> None:
+        """The newest take-over goes on to now, or a new one begins (its previous action was long ago)."""
+        extended = session.execute(
+            update(TakeoverSpan)
+            .where(
+                TakeoverSpan.run_id == run_id,
+                TakeoverSpan.id == select(TakeoverSpan.id).where(TakeoverSpan.run_id == run_id)
+                .order_by(TakeoverSpan.id.desc()).limit(1).scalar_subquery(),
+                TakeoverSpan.last_at >= self._db_now(minus_seconds=TAKEOVER_GAP_SECONDS),
+            )
+            .values(last_at=self._db_now())
+        ).rowcount  # fmt: skip
+        if not extended:
+            session.add(TakeoverSpan(run_id=run_id, started_at=self._db_now(), last_at=self._db_now()))
+
     def report_actor(self, *, run_id: int, state: str, frame_png: bytes | None = None) -> RobotStatus:
         """The actor, every control period: its state (cut to ACTOR_STATE_MAX characters) and, optionally, its
         newest camera frame (PNG). Stamps actor_seen_at (and frame_at with a frame) and returns the controls in
@@ -239,17 +322,17 @@ class RobotStore(StoreBase):
 
     # ---------------------------------------------------------------- helpers
     def _switch_stop(self, *, run_id: int, stop: bool) -> RobotStatus:
-        """Set stop_requested to `stop`; an event says so when it changed."""
+        """Set stop_requested to `stop` (a Stop ends a take-over too); an event says so when it changed."""
+        values: dict[str, Any] = {"stop_requested": stop, **({"takeover_action": None} if stop else {})}
         with self.writing() as session:
             status = self._update(
-                session, run_id=run_id, values={"stop_requested": stop},
-                condition=RobotControl.stop_requested.is_(not stop),
-            )  # fmt: skip
+                session, run_id=run_id, values=values, condition=RobotControl.stop_requested.is_(not stop)
+            )
             if status is None:  # already so, or no row yet
                 current = self._controls_row(session, run_id=run_id, create=False)
                 if current.stop_requested == stop:
                     return current
-                status = self._update_or_create(session, run_id=run_id, values={"stop_requested": stop})
+                status = self._update_or_create(session, run_id=run_id, values=values)
             message = "robot stop requested: the arm holds still" if stop else "robot resumed"
             session.add(Event(run_id=run_id, level="warning" if stop else "info", message=message))
             return status

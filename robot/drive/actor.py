@@ -105,6 +105,7 @@ class ActorState:
 
     STARTING = "starting"
     ACTING = "acting"
+    DRIVEN_BY_HAND = "driven by hand"
     WAITING_FOR_RESET = "waiting for reset"
     STOPPED = "stopped"
     LEARNER_GONE = "held safe: learner gone"
@@ -142,6 +143,11 @@ class Controls:
     asked_after: float = 0.0
     """Only answers to reports sent after this moment (monotonic) set the controls: one sent before the actor marked
     the robot stopped itself may still say "not stopped"."""
+    takeover_action: np.ndarray | None = None
+    """The person's newest action in a take-over (None: none)."""
+    takeover_seq: int = 0
+    takeover_seen_at: float = -np.inf
+    """When the control thread first saw the person's newest action (monotonic): it is fresh for one period."""
 
 
 # ====================================================================== the actor process
@@ -242,10 +248,30 @@ class ActorLoop:
                 if asked >= controls.asked_after:
                     controls.stop_requested, controls.reset_count = status.stop_requested, status.reset_count
                     controls.evaluation_pending = status.evaluation_pending
+                    self._take_person_action(status.takeover_action, status.takeover_seq, answered)
                 if status.stop_requested:
                     self._disarm()
                     self.wake.set()
             self.done.wait(CONTROL_POLL_SECONDS)
+
+    def _take_person_action(self, action: list[float] | None, seq: int, seen_at: float) -> None:
+        """A take-over's newest action as the store has it (None: handed back)."""
+        controls = self.controls
+        if action is None or len(action) != int(self.action_space.shape[0]):
+            controls.takeover_action = None
+            return
+        if seq != controls.takeover_seq:
+            controls.takeover_seq, controls.takeover_seen_at = seq, seen_at
+        controls.takeover_action = np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0)
+
+    def _person_action(self) -> np.ndarray | None:
+        """The person's action while they drive by hand: sent within one control period of when it was seen, so a
+        page whose connection dropped hands the arm back within a period; None: the policy drives."""
+        controls = self.controls
+        action = controls.takeover_action
+        if action is None or controls.stop_requested or time.monotonic() - controls.takeover_seen_at >= self.period:
+            return None
+        return action
 
     def lose_hold(self) -> None:
         """The robot is this actor's no longer (its run claimed again, another process serving the robot): no move
@@ -356,9 +382,12 @@ class ActorLoop:
                 continue
             if not self._may_move():  # (the step is sent late, once the hold says so, or never)
                 continue
+            person = self._person_action()  # (a take-over: the person's action instead, on the same path)
+            sent = action if person is None else person
+            self._set_state(ActorState.ACTING if person is None else ActorState.DRIVEN_BY_HAND)
             started = time.monotonic()
             try:
-                raw, reward, terminated, truncated, info = self.env.step(scale_action(action, self.action_space))
+                raw, reward, terminated, truncated, info = self.env.step(scale_action(sent, self.action_space))
             except RobotNotArmed:  # (reached after its arming ran out, or disarmed by a Stop: asked again)
                 continue
             self.pace.sent(started)
@@ -369,8 +398,8 @@ class ActorLoop:
             display = display_image(self.env, cfg.display_size, obs)
             self.frame = self._camera_view(display)
             self.outbox.put(Transition(
-                action, obs, float(reward), bool(terminated), bool(truncated), info, display, period,
-                self.controls.evaluation_round,
+                sent, obs, float(reward), bool(terminated), bool(truncated), info, display, period,
+                self.controls.evaluation_round, person is not None,
             ))  # fmt: skip
             if terminated or truncated or length >= cfg.episode_steps:
                 obs = self._begin_episode()
