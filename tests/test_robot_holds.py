@@ -5,7 +5,7 @@ import threading
 from sqlalchemy import update
 
 from contract.store import Store
-from contract.store.models import RobotHold, Run
+from contract.store.models import RobotHold, RobotProcess, Run
 from contract.store.robot_holds import HOLD_LAPSES_SECONDS, MOVE_WITHIN_SECONDS, robot_name
 
 ROBOT = robot_name("robot.standin:PusherStandIn-v0")
@@ -99,3 +99,22 @@ def test_racing_takes_leave_one_holder(store: Store) -> None:
     for thread in threads:
         thread.join(timeout=10)
     assert results.count(True) == 1
+
+
+def test_a_robot_process_replaced_by_another_can_neither_renew_nor_move_nor_take(store: Store) -> None:
+    """A robot process paused past its row's liveness, its row taken by a new process: continued, its hold (still
+    its own row in robot_holds, renewed lately) no longer renews and allows no move, so it lets go rather than
+    holding the arm another process now serves."""
+    run_id, claim = claimed_run(store, "a")
+    env_id = "robot.standin:PusherStandIn-v0"
+    store.report_robot_process(robot=ROBOT, env_id=env_id, holder="1@robotpc", state="driving run 1")
+    assert store.take_robot(robot=ROBOT, run_id=run_id, claim=claim, holder="1@robotpc").taken
+    assert store.renew_robot(robot=ROBOT, holder="1@robotpc")
+    assert store.may_move_robot(robot=ROBOT, holder="1@robotpc").allowed
+    with store.writing() as session:  # the paused process's row, as a successor takes it once it is stale
+        session.execute(update(RobotProcess).values(holder="2@robotpc3"))
+    assert not store.renew_robot(robot=ROBOT, holder="1@robotpc")
+    assert not store.may_move_robot(robot=ROBOT, holder="1@robotpc").held
+    assert not store.take_robot(robot=ROBOT, run_id=run_id, claim=claim, holder="1@robotpc").taken
+    store.release_robot(robot=ROBOT, holder="1@robotpc")
+    assert store.take_robot(robot=ROBOT, run_id=run_id, claim=claim, holder="2@robotpc3").taken  # the successor's
