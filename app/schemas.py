@@ -546,6 +546,9 @@ class RobotStatusOut(RowOut):  # model_validate(row_with(robot_status, run_name=
     )
     action_dims: int | None = Field(description="The robot's action dimensions (null before its actor announced).")
     control_hz: float | None = Field(description="The robot's control rate (null before its actor announced).")
+    asks_for_help: bool = Field(
+        description="No asked state has been a success lately (the reward's verdict): a take-over would show the way."
+    )
 
     @classmethod
     def derived(cls, status: Any) -> dict[str, Any]:

@@ -2,6 +2,7 @@
 metrics a comparison may plot, and a run's evaluated policies. Routers import these, never each other."""
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,11 +25,13 @@ from contract.checkpoint_location import (
     is_remote,
     run_folder,
 )
+from contract.config import TrainConfig
 from contract.effort import run_effort
 from contract.envs import SIM_TASK_SETTINGS
 from contract.learner_pace import run_pace
+from contract.reward_health import AnsweredQuestion, Verdict, reward_verdict
 from contract.settings import Settings
-from contract.store import RobotStatus, Run, Store
+from contract.store import QueryStatus, RobotStatus, Run, Store
 
 # The metrics a comparison may plot, served to the compare page (not retyped there).
 COMPARE_METRICS = {
@@ -66,13 +69,47 @@ def run_detail(store: Store, run: Run) -> RunDetail:
     config = run.config_values()
     values["learner_pace"] = run_pace(store, run.id, config)
     robot = store.robot_status(run_id=run.id)
-    values["robot"] = None if robot.actor_seen_at is None else robot_status_out(robot, run.name)
+    values["robot"] = None if robot.actor_seen_at is None else robot_status_out(robot, run, store)
     return RunDetail.model_validate(row_with(run, **values, config=config), from_attributes=True)
 
 
-def robot_status_out(status: RobotStatus, run_name: str) -> RobotStatusOut:
-    """A run's robot controls as the API shows them."""
-    return RobotStatusOut.model_validate(row_with(status, run_name=run_name), from_attributes=True)
+def robot_status_out(status: RobotStatus, run: Run, store: Store) -> RobotStatusOut:
+    """A run's robot controls as the API shows them, with whether the run asks for a person's help."""
+    asks = reward_health_of(store, run).verdict.asks_for_help
+    return RobotStatusOut.model_validate(
+        row_with(status, run_name=run.name, asks_for_help=asks), from_attributes=True
+    )
+
+
+ANSWERS_READ = 50
+"""The newest answered questions read for the reward's verdict (it looks at fewer)."""
+HEALTH_SERIES = ("reward/agreement_with_answers", "eval/classifier_return", "eval/success_rate")
+
+
+@dataclass(frozen=True)
+class RewardHealth:
+    verdict: Verdict
+    answered: int
+    """Answered questions the verdict read (those about states after the warm-up)."""
+    warm_up_steps: int
+
+
+def reward_health_of(store: Store, run: Run) -> RewardHealth:
+    """contract.reward_health's verdict on the run, from its newest answers and its recorded metrics."""
+    warm_up_steps = int(run.config_values().get("initial_random_steps", TrainConfig.initial_random_steps))
+    rows = store.list_queries(run_id=run.id, status=QueryStatus.ANSWERED, limit=ANSWERS_READ)
+    answered = [
+        AnsweredQuestion(env_step=row.env_step, score=row.score, answer=bool(row.answer)) for row in reversed(rows)
+    ]
+    series: dict[str, list[tuple[int, float]]] = {name: [] for name in HEALTH_SERIES}
+    for metric in store.metrics(run_id=run.id, names=HEALTH_SERIES):
+        series[metric.name].append((metric.step, metric.value))
+    verdict = reward_verdict(
+        answered=answered, agreement=series["reward/agreement_with_answers"],
+        classifier_return=series["eval/classifier_return"], success_rate=series["eval/success_rate"],
+        warm_up_steps=warm_up_steps,
+    )  # fmt: skip
+    return RewardHealth(verdict, sum(q.env_step > warm_up_steps for q in answered), warm_up_steps)
 
 
 def task_settings_out() -> dict[str, TaskSettingsOut]:

@@ -5,6 +5,7 @@ real-time actor, trained with a robot preset, reset by an automated person throu
     python bench/robot_standin.py --seeds 0 --steps 600                   # a short look at the timing figures
     python bench/robot_standin.py --seeds 0 --set device=cuda             # the paper's preset on a GPU
     python bench/robot_standin.py --seeds 1 --steps 1600 --actor remote --probes   # `raq actor` (remote_actor), probed
+    python bench/robot_standin.py --seeds 0-5 --parallel 3 --threads 1 --with-help interventions   # a person's hands
 
 Each seed starts `raq serve`, `raq oracle` and one learner (`raq learn --once`) on a fresh SQLite database, with
 80 goal photos from the stand-in's own camera (`robot.standin.goal_photos`, kept as the Camera panel keeps them)
@@ -22,6 +23,11 @@ comes before every episode: a resetter thread presses Ready through POST /api/ru
 - what the run cost the person (contract.effort, from the seed's own store);
 - with --probes: Stop robot at STOP_AT steps (Resume 2 s later) and, at the end, SIGKILL of the learner and the
   time until its actor reports the arm held safe.
+
+`--with-help interventions`: an automated person also takes the arm over by hand, as the run page lets a person do
+(bench/helping_person.py: the scripted pusher expert, often in the early episodes and less and less after, through
+POST /api/runs/ID/robot/drive); the stand-in then tells it where the mug and hand are (bench/seen_standin.py). The
+row's `help` column says which.
 
 Each seed writes <out>/seed<N>/figures.json; every seed's row goes to --csv (docs/results/robot.csv), replacing
 an earlier row of the same seed and preset, and its figures (its evaluations: the curve of bench/results.py's plot)
@@ -57,6 +63,9 @@ from contract.images import prepare_upload  # noqa: E402
 from contract.learner_pace import PACE_METRIC  # noqa: E402
 from contract.store import Store  # noqa: E402
 
+HELP_KINDS = ("none", "interventions")
+"""What a person's hands do for a seed: nothing, or take over now and then (bench/helping_person.py)."""
+
 STANDIN = "robot.standin:PusherStandIn-v0"
 TASK = "pusher-standin"
 """The task's name in robot.csv."""
@@ -76,10 +85,11 @@ STOP_AT = (1_500, 3_000, 4_500)
 """With --probes, env steps at which Stop robot is pressed (and Resume 2 s later)."""
 ROBOT_CSV = ROOT / "docs" / "results" / "robot.csv"
 CSV_COLUMNS = [
-    "task", "seed", "preset", "steps_to_target", "env_steps", "queries", "updates_per_step", "period_ms_mean",
+    "task", "seed", "preset", "help", "steps_to_target", "env_steps", "queries", "updates_per_step", "period_ms_mean",
     "wall_minutes", "device", "commit", *EFFORT_COLUMNS,
 ]  # fmt: skip
-"""robot.csv's columns: one row per seed and preset."""
+"""robot.csv's columns: one row per seed, preset and help."""
+ROW_KEY = ("task", "seed", "preset", "help")
 
 
 def request(url: str, method: str = "GET") -> dict:
@@ -167,25 +177,32 @@ def evaluate_policies(policy_file: Path, out: Path, done_file: Path, image_size:
 
 
 # ---------------------------------------------------------------------- one seed
+def standin_id(args: argparse.Namespace) -> str:
+    """The stand-in's env id: one that shows the automated person the scene when it helps."""
+    from bench.seen_standin import ENV_ID  # noqa: PLC0415
+
+    return ENV_ID if args.with_help == "interventions" else STANDIN
+
+
 def seed_config(args: argparse.Namespace, seed: int) -> tuple[str, TrainConfig]:
     """The preset's name and the seed's config: the preset, then --set's fields."""
     overrides = parse_overrides(args.set)
     preset = args.preset or robot_preset_for(str(overrides.get("device", "cpu"))).name
     config = getattr(TrainConfig, preset)(
-        env_id=STANDIN, seed=seed, total_steps=args.steps or TARGETS[preset][0], eval_every=500,
+        env_id=standin_id(args), seed=seed, total_steps=args.steps or TARGETS[preset][0], eval_every=500,
         remote_actor=args.actor == "remote", **overrides,
     )  # fmt: skip
     return preset, config
 
 
-def add_camera_goal_set(store: Store, *, count: int, image_size: int) -> int:
+def add_camera_goal_set(store: Store, *, count: int, image_size: int, env_id: str) -> int:
     """A goal set of `count` photos from the stand-in's own camera (robot.standin.goal_photos), made as the
     Camera panel's capture makes them (the model's copy centre-cropped and resized as every observation is)."""
     from PIL import Image  # noqa: PLC0415
 
     from robot.standin import goal_photos  # noqa: PLC0415
 
-    goal_set = store.create_goal_set(name="stand-in goals", image_size=image_size, env_id=STANDIN)
+    goal_set = store.create_goal_set(name="stand-in goals", image_size=image_size, env_id=env_id)
     for index, frame in enumerate(goal_photos(count)):
         buffer = io.BytesIO()
         Image.fromarray(frame).save(buffer, format="PNG")
@@ -201,10 +218,10 @@ def add_camera_goal_set(store: Store, *, count: int, image_size: int) -> int:
     return goal_set.id
 
 
-def wait_for_robot(store: Store, process: subprocess.Popen) -> None:
+def wait_for_robot(store: Store, process: subprocess.Popen, env_id: str) -> None:
     """Until the stand-in's own process has its row in the store (a learner then links to it)."""
     deadline = time.monotonic() + 120
-    while store.robot_process_of(env_id=STANDIN) is None:
+    while store.robot_process_of(env_id=env_id) is None:
         if process.poll() is not None or time.monotonic() > deadline:
             raise SystemExit("the robot's process did not come up")
         time.sleep(0.2)
@@ -222,15 +239,23 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
     data_dir.mkdir()
     upgrade(database_url)
     store = Store(database_url)
-    goal_set_id = add_camera_goal_set(store, count=REAL_ROBOT_GOAL_IMAGES, image_size=config.image_size)
+    goal_set_id = add_camera_goal_set(
+        store, count=REAL_ROBOT_GOAL_IMAGES, image_size=config.image_size, env_id=config.env_id
+    )
     run = store.create_run(
-        name=f"stand-in seed {seed}", env_id=STANDIN, algorithm=config.algorithm, config=config.to_dict(),
+        name=f"stand-in seed {seed}", env_id=config.env_id, algorithm=config.algorithm, config=config.to_dict(),
         seed=seed, goal_set_id=goal_set_id, total_steps=config.total_steps,
     )  # fmt: skip
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     env = {**os.environ, "RAQ_DATA_DIR": str(data_dir), "RAQ_PORT": str(port), "PYTHONUNBUFFERED": "1"}
     env.setdefault("MUJOCO_GL", "egl")
+    seen = out / "seen.json"
+    if args.with_help == "interventions":
+        from bench.seen_standin import SEEN_VARIABLE  # noqa: PLC0415
+
+        seen.unlink(missing_ok=True)
+        env.update({SEEN_VARIABLE: str(seen), "RAQ_ENV_MODULES": "bench.seen_standin", "PYTHONPATH": str(ROOT)})
     if args.threads:
         env["OMP_NUM_THREADS"] = str(args.threads)
     for name in ("RAQ_DATABASE_URL", "DATABASE_URL"):
@@ -245,8 +270,10 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
                                   stderr=subprocess.STDOUT)]  # fmt: skip
     done, presses = threading.Event(), []
     evaluator: subprocess.Popen | None = None
+    person = None  # (the automated person's hands, when it helps)
     figures: dict[str, object] = {
-        "task": TASK, "seed": seed, "preset": preset, "steps": config.total_steps, "env_id": STANDIN,
+        "task": TASK, "seed": seed, "preset": preset, "help": args.with_help, "steps": config.total_steps,
+        "env_id": config.env_id,
         "actor": args.actor, "device": config.device, "image_size": config.image_size,
         "conv_filters": config.conv_filters, "target_steps": target_steps, "target_queries": target_queries,
     }  # fmt: skip
@@ -260,12 +287,17 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
         evaluator = subprocess.Popen(evaluate, env=env, stdout=logs["evaluate"], stderr=subprocess.STDOUT)
         processes.append(evaluator)
         # the robot's own process, sharing only the database and the checkpoint store with the learner
-        actor = raq + (["actor", "--run", str(run.id)] if args.actor == "remote" else ["robot", STANDIN])
+        actor = raq + (["actor", "--run", str(run.id)] if args.actor == "remote" else ["robot", config.env_id])
         processes.append(subprocess.Popen(actor, env=env, stdout=logs["actor"], stderr=subprocess.STDOUT))
-        wait_for_robot(store, processes[-1])
+        wait_for_robot(store, processes[-1], config.env_id)
         learner = subprocess.Popen(raq + ["learn", "--once"], env=env, stdout=logs["learn"], stderr=subprocess.STDOUT)
         processes.append(learner)
         threading.Thread(target=resetter, args=(url, done, presses), daemon=True).start()
+        if args.with_help == "interventions":
+            from bench.helping_person import HelpingPerson  # noqa: PLC0415
+
+            person = HelpingPerson(url, run.id, seen, seed=seed, control_hz=config.control_hz or 5.0)
+            threading.Thread(target=person.run, args=(done,), daemon=True).start()
         if args.probes:
             probe(args, store, url, run.id, learner, figures)
         else:
@@ -288,6 +320,8 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
     figures["wall_minutes"] = round((time.monotonic() - started) / 60, 1)
     figures |= run_figures(store, run.id, read_evaluations(evaluations), warm_up=config.initial_random_steps)
     figures["resets"] = len(presses)
+    if person is not None:
+        figures["episodes_helped"], figures["actions_by_hand"] = person.episodes_helped, person.actions_sent
     figures["effort"] = run_effort(store, run.id).columns()
     figures["commit"] = current_commit()
     (out / "figures.json").write_text(json.dumps(figures, indent=2) + "\n")
@@ -320,7 +354,10 @@ def probe(
 def run_figures(store: Store, run_id: int, evaluations: list[dict], *, warm_up: int) -> dict:
     """The timing, pace and learning figures of a finished run, from its metrics and its evaluations; the pace
     over the windows after the warm-up's `warm_up` steps (no update is due before)."""
-    names = ["actor/period_ms_mean", "actor/period_ms_p99", "actor/period_ms_max", "queries/asked", PACE_METRIC]
+    names = [
+        "actor/period_ms_mean", "actor/period_ms_p99", "actor/period_ms_max", "queries/asked", PACE_METRIC,
+        "person/step_share",
+    ]  # fmt: skip
     metrics = {name: [(m.step, m.value) for m in store.metrics(run_id=run_id, names=[name])] for name in names}
     figures: dict[str, object] = {"env_steps": int(store.get_run(run_id=run_id).step or 0)}
     p99 = [value for _, value in metrics["actor/period_ms_p99"]]
@@ -337,31 +374,33 @@ def run_figures(store: Store, run_id: int, evaluations: list[dict], *, warm_up: 
     asked = [(step, value) for step, value in metrics["queries/asked"] if reached is None or step <= reached]
     figures["queries"] = int(asked[-1][1]) if asked else 0
     figures["best_success_rate"] = max((row["success_rate"] for row in evaluations), default=None)
+    figures["person_step_share"] = metrics["person/step_share"]  # (step, share of the steps since the last record)
     return figures
 
 
 # ---------------------------------------------------------------------- the table
 def write_rows(path: Path, rows: list[dict]) -> None:
-    """Each seed's row into the CSV, replacing an earlier row of the same task, seed and preset."""
-    key = ("task", "seed", "preset")
+    """Each seed's row into the CSV, replacing an earlier row of the same task, seed, preset and help (a row from
+    before the help column: none)."""
     kept = []
     if path.exists():
         with path.open() as file:
-            kept = list(csv.DictReader(file))
-    fresh = {tuple(str(row[k]) for k in key) for row in rows}
-    kept = [row for row in kept if tuple(row[k] for k in key) not in fresh]
+            kept = [{**row, "help": row.get("help") or "none"} for row in csv.DictReader(file)]
+    fresh = {tuple(str(row[k]) for k in ROW_KEY) for row in rows}
+    kept = [row for row in kept if tuple(row[k] for k in ROW_KEY) not in fresh]
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as file:
         writer = csv.DictWriter(file, fieldnames=CSV_COLUMNS)
         writer.writeheader()
-        for row in sorted(kept + rows, key=lambda row: (row["task"], row["preset"], int(row["seed"]))):
+        for row in sorted(kept + rows, key=lambda row: (row["task"], row["preset"], row["help"], int(row["seed"]))):
             writer.writerow({name: row.get(name, "") for name in CSV_COLUMNS})
 
 
 def keep_figures(csv_path: Path, figures_file: Path) -> dict:
     """A finished seed's figures: its row into the CSV, the figures beside it (robot/<preset>-seed<N>.json)."""
     figures = json.loads(figures_file.read_text())
-    kept = csv_path.parent / "robot" / f"{figures['preset']}-seed{figures['seed']}.json"
+    helped = "" if figures.get("help", "none") == "none" else f"-{figures['help']}"
+    kept = csv_path.parent / "robot" / f"{figures['preset']}{helped}-seed{figures['seed']}.json"
     kept.parent.mkdir(parents=True, exist_ok=True)
     kept.write_text(json.dumps(figures, indent=2) + "\n")
     row = csv_row(figures)
@@ -371,7 +410,7 @@ def keep_figures(csv_path: Path, figures_file: Path) -> dict:
 
 def csv_row(figures: dict) -> dict:
     row = {name: figures.get(name) for name in CSV_COLUMNS}
-    row |= figures["effort"]
+    row |= figures["effort"] | {"help": figures.get("help", "none")}
     return {name: "" if value is None else value for name, value in row.items()}
 
 
@@ -394,6 +433,10 @@ def main() -> int:
         "remote_actor run",
     )  # fmt: skip
     parser.add_argument("--probes", action="store_true", help="Stop robot at STOP_AT; SIGKILL at the end")
+    parser.add_argument(
+        "--with-help", choices=HELP_KINDS, default="none",
+        help="an automated person's hands: none (default), or take-overs now and then (bench/helping_person.py)",
+    )  # fmt: skip
     parser.add_argument("--seed", type=int, default=None, help=argparse.SUPPRESS)  # (one seed, in its own process;
     # --seeds is then ignored)
     parser.add_argument("--evaluate", nargs=4, metavar=("POLICY", "OUT", "DONE", "SIZE"), help=argparse.SUPPRESS)
@@ -428,12 +471,12 @@ def main() -> int:
             time.sleep(2.0)
     finally:
         stop_all(list(running.values()))
-    print("| seed | preset | steps to 90% | queries | updates per step | person minutes |")
-    print("| --- | --- | --- | --- | --- | --- |")
+    print("| seed | preset | help | steps to 90% | queries | updates per step | person minutes |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
     for row in rows:
         steps = row["steps_to_target"] or f"not reached ({row['env_steps']})"
-        print(f"| {row['seed']} | {row['preset']} | {steps} | {row['queries']} | {row['updates_per_step']} | "
-              f"{row['person_minutes']} |")  # fmt: skip
+        print(f"| {row['seed']} | {row['preset']} | {row['help']} | {steps} | {row['queries']} | "
+              f"{row['updates_per_step']} | {row['person_minutes']} |")  # fmt: skip
     return 0
 
 

@@ -58,6 +58,8 @@ class Verdict:
     """What the measurements say, in one sentence."""
     advice: str
     """What to do about it ("" when nothing needs doing)."""
+    asks_for_help: bool = False
+    """No asked state has been a success lately: a person's hands (a take-over, on a robot) would show the way."""
 
 
 def trend(series: Series) -> float:
@@ -97,6 +99,7 @@ def reward_verdict(
             "no: the policy is exploiting the classifier.",
             "Ask more often (a lower query_every) and weigh the no answers more among f_psi's negatives (a higher "
             "no_answer_share than its 0.25), and add goal photos that show the finished task from the camera's view.",
+            asks_for_help=True,
         )
     if len(agreement) and len(answered) >= 2 * MIN_QUERIES and agreement[-1][1] < LOW_AGREEMENT:
         return Verdict(
@@ -113,8 +116,10 @@ def reward_verdict(
             "stuck" if flat and len(answered) >= RECENT_QUERIES else "watch",
             f"none of the last {len(recent)} asked states was a success {moving}: the policy has not reached the "
             "goal yet.",
-            "If it stays so, give goal photos closer to what the robot can reach, a longer run, or a scene reset "
-            "that starts nearer the goal.",
+            "On a robot, take over on the run page and show it the way to the goal now and then. Else, if it stays "
+            "so, give goal photos closer to what the robot can reach, a longer run, or a scene reset that starts "
+            "nearer the goal.",
+            asks_for_help=True,
         )
     if best_success:
         return Verdict("learning", f"eval success reached {best_success:.0%}: the reward leads toward the goal.", "")

@@ -65,6 +65,9 @@ export class RobotCards {
       stop: el("button", { class: "btn danger robot-stop", type: "button" }, "Stop robot ", el("kbd", {}, "X")),
       resume: el("button", { class: "btn robot-resume hidden", type: "button" }, "Resume"),
       evaluating: el("p", { class: "robot-evaluating small hidden" }),
+      help: el("p", { class: "robot-help hidden" }, "Asks for help: none of its recent questions was a success. ",
+        el("a", { href: `/runs/${runId}#takeover-area` }, "Take over"),
+        " on the run page (hold the arrow keys) to show it the way."),
       episodes: el("input", {
         class: "robot-episodes", type: "number", min: EVALUATION_EPISODES.min, max: EVALUATION_EPISODES.max,
         value: EVALUATION_EPISODES.default, required: true, "aria-label": "episodes to evaluate",
@@ -95,7 +98,7 @@ export class RobotCards {
       el("div", { class: "robot-view" }, card.camera, card.noCamera),
       el("div", { class: "robot-body" },
         el("div", { class: "robot-head" }, card.title, card.stopped),
-        card.reset, card.state, card.evaluating,
+        card.reset, card.help, card.state, card.evaluating,
         el("div", { class: "robot-buttons" }, card.ready, card.stop, card.resume,
           this.evaluate ? evaluateForm : null)),
     );
@@ -119,6 +122,7 @@ export class RobotCards {
     for (const button of [card.ready, card.stop, card.resume]) button.disabled = busy;
     const pending = robot.evaluation_pending;
     card.evaluating.classList.toggle("hidden", !pending);
+    card.help.classList.toggle("hidden", !robot.asks_for_help || robot.stop_requested);
     card.evaluating.textContent = pending
       ? `Evaluating: ${pending} episode${pending === 1 ? "" : "s"} left (round ${robot.evaluation_round})` : "";
     card.evaluate.disabled = busy || pending > 0; // (one round at a time)

@@ -56,8 +56,9 @@ export class TakeOver {
       root: el("div", { class: "panel takeover", id: "takeover" }),
       driver: el("strong", { class: "takeover-driver", id: "takeover-driver" }),
       keys: el("span", { class: "takeover-keys small", id: "takeover-keys" }),
+      help: el("div", { class: "takeover-help robot-help", id: "takeover-help" }),
     };
-    this.panel.root.append(this.panel.driver, " ", this.panel.keys);
+    this.panel.root.append(this.panel.driver, " ", this.panel.keys, this.panel.help);
     container.replaceChildren(this.panel.root);
     document.addEventListener("keydown", (event) => this.keydown(event));
     document.addEventListener("keyup", (event) => this.keyup(event));
@@ -88,8 +89,12 @@ export class TakeOver {
     let text = "The policy drives.";
     if (robot && robot.stop_requested) text = "Stopped: nobody drives until Resume.";
     else if (this.driving) text = "You drive.";
+    const help = Boolean(robot && robot.asks_for_help && !robot.stop_requested && !this.driving);
     this.panel.driver.textContent = text;
+    this.panel.help.textContent = help
+      ? "The run asks for help: none of its recent questions was a success. Hold the keys to show it the way." : "";
     this.panel.root.classList.toggle("driving", this.driving);
+    this.panel.root.classList.toggle("asks-for-help", help);
   }
 
   typing(event) {

@@ -32,11 +32,13 @@ def test_a_stuck_run_is_called_stuck_with_what_to_do() -> None:
     assert verdict.level == "stuck"
     assert "none of the last 10 asked states was a success" in verdict.summary
     assert "has not reached the goal" in verdict.summary and verdict.advice
+    assert verdict.asks_for_help and "take over on the run page" in verdict.advice  # a person's hands would help
 
 
 def test_a_learning_run_is_called_learning_before_and_after_it_reaches_its_target() -> None:
     answered, success = recorded("reward_health_pusher_learning.json")
     assert reward_verdict(answered=answered, success_rate=success).level == "learning"
+    assert not reward_verdict(answered=answered, success_rate=success).asks_for_help
     early = [(step, rate) for step, rate in success if step <= 12_000]
     verdict = reward_verdict(answered=answered[:2], success_rate=early)
     assert verdict.level == "learning" and not verdict.advice
@@ -122,8 +124,11 @@ def test_the_api_gives_the_verdict(client: TestClient, store: Store, goal_set_wi
         )  # fmt: skip
         store.answer_query(query_id=query.id, success=False)
     health = client.get(f"/api/runs/{run['id']}/reward-health").json()
-    assert health["level"] == "stuck" and health["answered"] == 10
+    assert health["level"] == "stuck" and health["answered"] == 10 and health["asks_for_help"] is True
     assert "exploiting the classifier" in health["summary"]
+    store.report_actor(run_id=run["id"], state="acting")  # a robot run: its card says it too
+    assert client.get(f"/api/runs/{run['id']}").json()["robot"]["asks_for_help"] is True
+    assert client.get(f"/api/runs/{run['id']}/robot").json()["asks_for_help"] is True
     assert client.get("/api/runs/999999/reward-health").status_code == 404
 
 

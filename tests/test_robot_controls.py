@@ -272,7 +272,7 @@ def test_the_api_stops_resumes_and_says_whether_the_actor_is_live(client: TestCl
         "run_id": run_id, "run_name": "", "stop_requested": False, "reset_needed": False, "reset_count": 0,
         "actor_state": None, "actor_seen_at": None, "actor_age_seconds": None, "live": False, "frame_at": None,
         "camera_url": None, "evaluation_pending": 0, "evaluation_round": 0, "takeover_action": None,
-        "action_dims": None, "control_hz": None,
+        "action_dims": None, "control_hz": None, "asks_for_help": False,
     }  # fmt: skip
     for _ in range(2):
         stopped = client.post(f"/api/runs/{run_id}/robot/stop")

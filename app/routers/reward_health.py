@@ -5,21 +5,18 @@ from pydantic import BaseModel
 
 from app.deps import ReadAuth, RunId, StoreDep
 from app.schemas import errors
-from contract.config import TrainConfig
-from contract.reward_health import AnsweredQuestion, Level, reward_verdict
-from contract.store import QueryStatus
+from app.views import reward_health_of
+from contract.reward_health import Level
 
 router = APIRouter(prefix="/api/runs", tags=["metrics"], responses=errors(401))
-
-ANSWERS_READ = 50
-"""The newest answered questions read for the verdict (it looks at fewer)."""
-SERIES = ("reward/agreement_with_answers", "eval/classifier_return", "eval/success_rate")
 
 
 class RewardHealthOut(BaseModel):
     level: Level
     summary: str
     advice: str
+    asks_for_help: bool
+    """No asked state has been a success lately: a person's hands would show the way (a take-over, on a robot)."""
     answered: int
     """Answered questions the verdict read (those about states after the warm-up)."""
     warm_up_steps: int
@@ -31,21 +28,9 @@ def reward_health(run_id: RunId, store: StoreDep, _auth: ReadAuth) -> RewardHeal
     """Is the reward leading the policy toward the goal? What the answers, f_psi's agreement with them, the
     classifier's return and eval success say, and what to do when the run is stuck. Only evidence from after the
     warm-up counts."""
-    run = store.get_run(run_id=run_id)
-    warm_up_steps = int(run.config_values().get("initial_random_steps", TrainConfig.initial_random_steps))
-    rows = store.list_queries(run_id=run_id, status=QueryStatus.ANSWERED, limit=ANSWERS_READ)
-    answered = [
-        AnsweredQuestion(env_step=row.env_step, score=row.score, answer=bool(row.answer)) for row in reversed(rows)
-    ]
-    series: dict[str, list[tuple[int, float]]] = {name: [] for name in SERIES}
-    for metric in store.metrics(run_id=run_id, names=SERIES):
-        series[metric.name].append((metric.step, metric.value))
-    verdict = reward_verdict(
-        answered=answered, agreement=series["reward/agreement_with_answers"],
-        classifier_return=series["eval/classifier_return"], success_rate=series["eval/success_rate"],
-        warm_up_steps=warm_up_steps,
-    )  # fmt: skip
+    health = reward_health_of(store, store.get_run(run_id=run_id))
+    verdict = health.verdict
     return RewardHealthOut(
-        level=verdict.level, summary=verdict.summary, advice=verdict.advice,
-        answered=sum(question.env_step > warm_up_steps for question in answered), warm_up_steps=warm_up_steps,
+        level=verdict.level, summary=verdict.summary, advice=verdict.advice, asks_for_help=verdict.asks_for_help,
+        answered=health.answered, warm_up_steps=health.warm_up_steps,
     )  # fmt: skip

@@ -18,7 +18,7 @@ NO_STORE = {"Cache-Control": "no-store"}
 
 
 def robot_out(store: Store, status: RobotStatus) -> RobotStatusOut:
-    return robot_status_out(status, store.get_run(run_id=status.run_id).name)
+    return robot_status_out(status, store.get_run(run_id=status.run_id), store)
 
 
 @run_robot.get("/{run_id}/robot", response_model=RobotStatusOut, responses=errors(404))

@@ -1,0 +1,95 @@
+"""An automated person who helps a robot run with their hands, as HIL-SERL's guide says a person should: often in
+the early episodes, then less and less. It sends what the run page sends, through the REST API: while it helps, the
+scripted pusher expert's action (sim/scripted.py, on the scene as bench/seen_standin.py shows it) every half control
+period (POST /api/runs/ID/robot/drive), and a hand-back once the mug is on the coaster or the episode ends.
+
+In each episode it lets the policy act for a few steps first (0 to LATEST_START_STEPS, drawn), so the states it
+takes over from vary; whether it helps at all is drawn per episode with `help_chance(episode)`.
+"""
+
+import contextlib
+import json
+import threading
+import urllib.error
+import urllib.request
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from bench.seen_standin import seen_state
+from sim.pusher import VisualPusherEnv
+from sim.scripted import pusher_action
+
+OFTEN_EPISODES = 20
+"""The first episodes, in each of which the person helps with probability OFTEN."""
+OFTEN = 0.7
+TAPER_EPISODES = 60
+"""From OFTEN_EPISODES to this episode the chance falls linearly to 0; after it, no help."""
+LATEST_START_STEPS = 20
+"""The person takes over after 0 to this many of the policy's steps."""
+
+
+def help_chance(episode: int) -> float:
+    """The chance the person helps in `episode` (the first is 1): OFTEN early, tapering to none."""
+    if episode <= OFTEN_EPISODES:
+        return OFTEN
+    return max(0.0, OFTEN * (TAPER_EPISODES - episode) / (TAPER_EPISODES - OFTEN_EPISODES))
+
+
+def expert_action(state: dict) -> np.ndarray:
+    """The scripted pusher's action for the scene as seen."""
+    scene = SimpleNamespace(
+        mug_pos=np.asarray(state["mug"]), goal_pos=np.asarray(state["goal"]), hand_pos=np.asarray(state["hand"]),
+        mug_radius=VisualPusherEnv.mug_radius, pusher_radius=VisualPusherEnv.pusher_radius,
+        action_scale=VisualPusherEnv.action_scale,
+    )  # fmt: skip
+    return np.asarray(pusher_action(scene), dtype=float)  # type: ignore[arg-type]
+
+
+def post(url: str, body: dict | None = None) -> int:
+    """POST `body` as JSON; the status code."""
+    data = json.dumps(body or {}).encode()
+    call = urllib.request.Request(url, method="POST", data=data, headers={"Content-Type": "application/json"})
+    try:
+        with urllib.request.urlopen(call, timeout=5) as response:
+            return response.status
+    except urllib.error.HTTPError as error:
+        return error.code
+
+
+class HelpingPerson:
+    """The person's hands for one run: `run(done)` until `done` is set."""
+
+    def __init__(self, url: str, run_id: int, seen: Path, *, seed: int, control_hz: float) -> None:
+        self.url, self.run_id, self.seen = url, run_id, seen
+        self.rng = np.random.default_rng([seed, 57])
+        self.half_period = 0.5 / control_hz
+        self.episodes_helped = 0
+        self.actions_sent = 0
+
+    def run(self, done: threading.Event) -> None:
+        episode, helping, start_after, driving = 0, False, 0, False
+        drive = f"{self.url}/api/runs/{self.run_id}/robot/drive"
+        while not done.is_set():
+            state = seen_state(self.seen)
+            if state is not None and state["episode"] != episode:  # a new episode: help in it or not
+                episode = state["episode"]
+                helping = bool(self.rng.random() < help_chance(episode))
+                start_after = int(self.rng.integers(0, LATEST_START_STEPS + 1))
+                self.episodes_helped += helping
+            wanted = helping and state is not None and state["step"] >= start_after and not state["success"]
+            if wanted:
+                try:
+                    code = post(drive, {"action": [round(float(v), 4) for v in expert_action(state)]})
+                except OSError:
+                    code = 0
+                driving = code == 202
+                self.actions_sent += driving
+            elif driving:
+                with contextlib.suppress(OSError):
+                    post(f"{self.url}/api/runs/{self.run_id}/robot/hand-back")
+                driving = False
+            if state is not None and state["success"]:
+                helping = False  # (the mug is on the coaster: the policy has the rest of the episode)
+            done.wait(self.half_period)
