@@ -4,7 +4,8 @@ scripted pusher expert's action (sim/scripted.py, on the scene as bench/seen_sta
 period (POST /api/runs/ID/robot/drive), and a hand-back once the mug is on the coaster or the episode ends.
 
 In each episode it lets the policy act for a few steps first (0 to LATEST_START_STEPS, drawn), so the states it
-takes over from vary; whether it helps at all is drawn per episode with `help_chance(episode)`.
+takes over from vary; whether it helps at all is drawn per episode with `help_chance(episode, asked)`: `asked`
+when the run asks for help (GET /api/runs/ID/robot: `asks_for_help`, no asked state a success lately).
 """
 
 import contextlib
@@ -28,13 +29,17 @@ TAPER_EPISODES = 60
 """From OFTEN_EPISODES to this episode the chance falls linearly to 0; after it, no help."""
 LATEST_START_STEPS = 20
 """The person takes over after 0 to this many of the policy's steps."""
+ASKED = 0.3
+"""The chance the person helps in an episode while the run asks for help (at least)."""
 
 
-def help_chance(episode: int) -> float:
-    """The chance the person helps in `episode` (the first is 1): OFTEN early, tapering to none."""
+def help_chance(episode: int, asked: bool = False) -> float:
+    """The chance the person helps in `episode` (the first is 1): OFTEN early, tapering to none; at least ASKED
+    while the run asks for help."""
     if episode <= OFTEN_EPISODES:
         return OFTEN
-    return max(0.0, OFTEN * (TAPER_EPISODES - episode) / (TAPER_EPISODES - OFTEN_EPISODES))
+    tapered = max(0.0, OFTEN * (TAPER_EPISODES - episode) / (TAPER_EPISODES - OFTEN_EPISODES))
+    return max(tapered, ASKED) if asked else tapered
 
 
 def expert_action(state: dict) -> np.ndarray:
@@ -45,6 +50,15 @@ def expert_action(state: dict) -> np.ndarray:
         action_scale=VisualPusherEnv.action_scale,
     )  # fmt: skip
     return np.asarray(pusher_action(scene), dtype=float)  # type: ignore[arg-type]
+
+
+def asks_for_help(url: str, run_id: int) -> bool:
+    """Whether the run asks for a person's help now (False when the server cannot say)."""
+    try:
+        with urllib.request.urlopen(f"{url}/api/runs/{run_id}/robot", timeout=5) as response:
+            return bool(json.loads(response.read()).get("asks_for_help"))
+    except (OSError, ValueError):
+        return False
 
 
 def post(url: str, body: dict | None = None) -> int:
@@ -75,7 +89,8 @@ class HelpingPerson:
             state = seen_state(self.seen)
             if state is not None and state["episode"] != episode:  # a new episode: help in it or not
                 episode = state["episode"]
-                helping = bool(self.rng.random() < help_chance(episode))
+                asked = asks_for_help(self.url, self.run_id)
+                helping = bool(self.rng.random() < help_chance(episode, asked))
                 start_after = int(self.rng.integers(0, LATEST_START_STEPS + 1))
                 self.episodes_helped += helping
             wanted = helping and state is not None and state["step"] >= start_after and not state["success"]

@@ -1,11 +1,12 @@
 """The automated person of the stand-in bench: the scene as the stand-in shows it is enough for its hands (the
-scripted expert) to put the mug on the coaster, and it helps often early and not at all late."""
+scripted expert) to put the mug on the coaster, and it helps often early and not at all late, unless the run
+asks for help."""
 
 from pathlib import Path
 
 import numpy as np
 
-from bench.helping_person import OFTEN, TAPER_EPISODES, expert_action, help_chance
+from bench.helping_person import ASKED, OFTEN, TAPER_EPISODES, expert_action, help_chance
 from bench.seen_standin import SEEN_VARIABLE, SeenStandIn, seen_state
 
 
@@ -34,3 +35,4 @@ def test_help_comes_often_early_then_tapers_to_none() -> None:
     chances = [help_chance(episode) for episode in range(1, 100)]
     assert chances[0] == OFTEN and chances[TAPER_EPISODES:] == [0.0] * len(chances[TAPER_EPISODES:])
     assert np.all(np.diff(chances) <= 0)
+    assert help_chance(TAPER_EPISODES + 10, asked=True) == ASKED  # late, but the run asks for help
