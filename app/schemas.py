@@ -549,6 +549,8 @@ class RobotStatusOut(RowOut):  # model_validate(row_with(robot_status, run_name=
     asks_for_help: bool = Field(
         description="No asked state has been a success lately (the reward's verdict): a take-over would show the way."
     )
+    success_marks: int = Field(description="How many times a person pressed the success key.")
+    demo_pending: int = Field(description="Episodes of Record demos not begun yet (each driven by hand).")
 
     @classmethod
     def derived(cls, status: Any) -> dict[str, Any]:
@@ -575,6 +577,15 @@ class DriveIn(InputModel):
 
 
 RunDetail.model_rebuild()  # (its `robot` is a RobotStatusOut)
+
+
+class DemosIn(InputModel):
+    """Record demos: episodes for the person to drive by hand before the policy acts again."""
+
+    episodes: int = Field(
+        ge=1, le=EVALUATION_EPISODES_MAX,
+        description="How many episodes; in each the robot moves only while the person holds a drive key.",
+    )  # fmt: skip
 
 
 class EvaluateIn(InputModel):

@@ -120,6 +120,14 @@ class StateChange:
 
 
 @dataclass
+class SuccessMarked:
+    """A person pressed the success key: the episode under way (or, at a new one's start, the one before) ended in
+    a success."""
+
+    kind: ClassVar[str] = "success"
+
+
+@dataclass
 class Failure:
     """The actor failed: its traceback."""
 
@@ -127,7 +135,7 @@ class Failure:
     traceback: str
 
 
-ActorMessage = EpisodeStart | Transition | StateChange
+ActorMessage = EpisodeStart | Transition | StateChange | SuccessMarked
 """What the learner takes from its actor as training goes on."""
 
 
@@ -166,8 +174,8 @@ class Close:
 
 LearnerMessage = Start | PolicyWeights | KeepAlive | Close
 MESSAGE_TYPES: dict[str, type] = {
-    cls.kind: cls for cls in (Ready, EpisodeStart, Transition, StateChange, Failure, Start, PolicyWeights, KeepAlive,
-                              Close)
+    cls.kind: cls for cls in (Ready, EpisodeStart, Transition, StateChange, SuccessMarked, Failure, Start,
+                              PolicyWeights, KeepAlive, Close)
 }  # fmt: skip
 """Every message type by its kind, as rows name them."""
 

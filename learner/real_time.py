@@ -13,12 +13,14 @@ the actor starts again, so that no step the robot took is lost.
 """
 
 import time
+from collections import deque
 from pathlib import Path
 
 import numpy as np
 
-from contract.actor_messages import ActorMessage, ActorSettings, EpisodeStart, StateChange, Transition
+from contract.actor_messages import ActorMessage, ActorSettings, EpisodeStart, StateChange, SuccessMarked, Transition
 from contract.config import TrainConfig
+from contract.envs import model_image
 from contract.learner_pace import PACE_METRIC
 from contract.store import Store
 from learner.actor_handle import ActorProcess, RemoteActor
@@ -27,6 +29,8 @@ from learner.run_control import RunControl
 from learner.trainer import EnvEpisode, EnvStep, Trainer
 from robot.base import control_rate, robot_class
 
+SUCCESS_FRAMES = 3
+"""The last frames of an episode a person marked a success that join f_psi's positives."""
 REAL_TIME_SLICE = 0.5
 """Seconds the loop waits for the actor's next step before it looks at its controls again."""
 ACTOR_POLL_SECONDS = 0.02
@@ -83,6 +87,8 @@ class RealTimeRunner:
         self.policy_sent_at = -np.inf
         self.periods: list[float] = []
         self.person_steps: list[bool] = []  # (whether a person drove each step since the last record)
+        self.last_frames: deque[np.ndarray] = deque(maxlen=SUCCESS_FRAMES)  # the episode's newest observations
+        self.previous_frames: list[np.ndarray] = []  # the last ones of the episode before
         self.paced_from = (0, 0)  # (env step, SAC updates) at the last record
         self.kept_from, self.kept_through = 0, 0  # (the checkpoint's step; the id of the newest message kept since)
         self.actor_started = False
@@ -150,6 +156,10 @@ class RealTimeRunner:
             elif isinstance(message, EpisodeStart):
                 trainer.start_episode(episode, message.observation, message.info)
                 self.evaluation.episode_began()
+                self.previous_frames = list(self.last_frames)
+                self.last_frames.clear()
+            elif isinstance(message, SuccessMarked):
+                self._success_marked()
             elif isinstance(message, StateChange):
                 trainer.control.event(f"robot: {message.state}")
             elif isinstance(message, Transition) and episode.length >= 0:  # a step of the episode under way
@@ -157,6 +167,7 @@ class RealTimeRunner:
                     self.periods.append(message.period)
                 self.evaluation.take_step(message, env_step=trainer.counters.step + 1)
                 self.person_steps.append(message.person)
+                self.last_frames.append(message.observation)
                 action = np.asarray(message.action, dtype=np.float32)
                 return [EnvStep(episode, action, message.outcome(), message.person)]
 
@@ -179,6 +190,18 @@ class RealTimeRunner:
         self.periods.clear()
         return {"actor/period_ms_mean": float(periods.mean()), "actor/period_ms_p99": float(np.percentile(periods, 99)),
                 "actor/period_ms_max": float(periods.max())}  # fmt: skip
+
+    def _success_marked(self) -> None:
+        """A person's success key: the last frames of the episode under way (of the one before, when this one has
+        barely begun: the key came as it ended) join f_psi's positives, as a yes answer's frame does."""
+        frames = list(self.last_frames) if len(self.last_frames) > 1 else self.previous_frames
+        model = self.trainer.reward_model
+        if model is None or not frames:
+            self.trainer.control.event("a success was marked, but this run has no classifier to tell")
+            return
+        for frame in frames:
+            model.add_positive(model_image(frame, self.trainer.config.image_size, self.trainer.config.env_id))
+        self.trainer.control.event(f"a person marked a success: the episode's last {len(frames)} frames are positives")
 
     def _person_metrics(self) -> dict[str, float]:
         """The share of the robot's steps since the last record that a person drove by hand, and how many steps

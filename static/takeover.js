@@ -3,7 +3,9 @@
 // the robot's own process sends it to the arm instead of the policy's, at its own pace and within its limits, for
 // one period from when it saw it, so a dropped connection hands the arm back within a period. Releasing everything
 // sends a hand-back at once. A Stop (X, or the card's button) ends a take-over: the server refuses actions until
-// Resume, and the keys must be released and pressed again.
+// Resume, and the keys must be released and pressed again. G is the success key: the episode under way (or just
+// ended) is a success, and its last frames teach the classifier; it also ends a demo episode. Record demos makes the
+// robot's next episodes wait for the keys, the policy idle.
 import { api, el } from "/static/app.js";
 
 /** The keys of each action dimension, in order: [dimension's name, key for -1, key for +1, what the page shows]. */
@@ -13,6 +15,7 @@ export const DRIVE_KEYS = [
   ["z", ["q"], ["e"], "Q E"],
   ["4th", ["z"], ["c"], "Z C"],
 ];
+const SUCCESS_KEY = "g";
 const DEADZONE = 0.15; // a gamepad axis nearer 0 than this is at rest
 const SEND_MIN_MS = 20; // the fastest the page sends, whatever the robot's rate
 
@@ -57,8 +60,23 @@ export class TakeOver {
       driver: el("strong", { class: "takeover-driver", id: "takeover-driver" }),
       keys: el("span", { class: "takeover-keys small", id: "takeover-keys" }),
       help: el("div", { class: "takeover-help robot-help", id: "takeover-help" }),
+      demos: el("div", { class: "takeover-demos small", id: "takeover-demos" }),
+      episodes: el("input", { type: "number", min: 1, max: 20, value: 5, required: true, id: "demo-episodes",
+        "aria-label": "demo episodes to drive by hand" }),
+      record: el("button", { class: "btn", type: "submit", id: "record-demos",
+        title: "The next episodes wait for your keys; the policy acts again after them" }, "Record demos"),
+      success: el("button", { class: "btn", type: "button", id: "mark-success",
+        title: "The episode is a success: its last frames teach the classifier" }, "Success ", el("kbd", {}, "G")),
     };
-    this.panel.root.append(this.panel.driver, " ", this.panel.keys, this.panel.help);
+    const demoForm = el("form", { class: "inline-form" }, this.panel.record,
+      el("label", { class: "small" }, this.panel.episodes, " episodes by hand"));
+    demoForm.addEventListener("submit", (event) => {
+      event.preventDefault();
+      this.post("demos", { episodes: Number(this.panel.episodes.value) }, "Record demos");
+    });
+    this.panel.success.addEventListener("click", () => this.post("success", undefined, "Success"));
+    this.panel.root.append(this.panel.driver, " ", this.panel.keys, this.panel.help, this.panel.demos,
+      el("div", { class: "robot-buttons" }, this.panel.success, demoForm));
     container.replaceChildren(this.panel.root);
     document.addEventListener("keydown", (event) => this.keydown(event));
     document.addEventListener("keyup", (event) => this.keyup(event));
@@ -79,7 +97,13 @@ export class TakeOver {
     const listed = DRIVE_KEYS.slice(0, dims).map(([name, , , keys]) => `${keys} (${name})`);
     const unkeyed = dims > DRIVE_KEYS.length ? `; dimensions past the 4th: a gamepad only` : "";
     this.panel.keys.textContent = `Take over: hold ${listed.join(", ")} or move a gamepad's sticks; ` +
-      `release to hand back${unkeyed}. X stops the robot.`;
+      `release to hand back${unkeyed}. G: the episode is a success. X stops the robot.`;
+    const demos = robot.demo_pending;
+    const inDemo = (robot.actor_state || "").startsWith("demo");
+    this.panel.demos.textContent = demos || inDemo
+      ? `Demos: ${inDemo ? "this episode is yours (the robot moves only while you hold a key; G ends it); " : ""}` +
+        `${demos} more to begin` : "";
+    this.panel.record.disabled = demos > 0;
     if (robot.stop_requested) this.stopDriving();
     this.renderDriver();
   }
@@ -105,6 +129,11 @@ export class TakeOver {
   keydown(event) {
     if (!this.robot || !this.robot.action_dims || this.typing(event) || event.ctrlKey || event.metaKey ||
         event.altKey) return;
+    if (event.key.toLowerCase() === SUCCESS_KEY && !event.repeat) {
+      event.preventDefault();
+      this.post("success", undefined, "Success");
+      return;
+    }
     if (!keyDimension(event.key, this.robot.action_dims)) return;
     event.preventDefault(); // (arrows would scroll the page)
     this.held.add(event.key.length === 1 ? event.key.toLowerCase() : event.key);
@@ -176,6 +205,19 @@ export class TakeOver {
       this.say("error", `Take-over refused: ${error.message}`);
     } finally {
       this.inFlight = false;
+    }
+  }
+
+  /** POST the robot's `action` (success, demos) and say how it went. */
+  async post(action, body, what) {
+    if (!this.robot) return;
+    try {
+      this.robot = { ...this.robot, ...(await api("POST", `/api/runs/${this.robot.run_id}/robot/${action}`, body)) };
+      this.say("info", action === "success" ? "Marked a success: its last frames teach the classifier."
+        : `${what}: the next ${body.episodes} episodes are yours to drive.`);
+      this.show(this.robot);
+    } catch (error) {
+      this.say("error", `${what} refused: ${error.message}`);
     }
   }
 

@@ -172,3 +172,69 @@ def test_a_persons_actions_reach_the_arm_at_its_pace_end_within_a_period_and_nev
             lambda: any(m.value > 0 for m in store.metrics(run_id=run_id, names=["person/steps"])),
             60, "the learner to count the steps driven by hand",
         )  # fmt: skip
+
+
+def test_the_success_key_and_record_demos_need_an_actor_and_take_what_they_must(
+    client: TestClient, store: Store
+) -> None:
+    run_id = _run(store)
+    assert client.post(f"/api/runs/{run_id}/robot/success").status_code == 409
+    assert client.post(f"/api/runs/{run_id}/robot/demos", json={"episodes": 2}).status_code == 409
+    store.report_actor(run_id=run_id, state="acting")
+    marked = client.post(f"/api/runs/{run_id}/robot/success")
+    assert marked.status_code == 202 and marked.json()["success_marks"] == 1
+    for bad in (0, 21, "2", 2.5, True):
+        assert client.post(f"/api/runs/{run_id}/robot/demos", json={"episodes": bad}).status_code == 422, bad
+    asked = client.post(f"/api/runs/{run_id}/robot/demos", json={"episodes": 2})
+    assert asked.status_code == 202 and asked.json()["demo_pending"] == 2
+    again = client.post(f"/api/runs/{run_id}/robot/demos", json={"episodes": 1})
+    assert again.status_code == 409 and "2 episodes not begun" in again.json()["detail"]
+    assert store.take_demo_episode(run_id=run_id) and store.take_demo_episode(run_id=run_id)
+    assert not store.take_demo_episode(run_id=run_id)
+    messages = [event.message for event in store.events(run_id=run_id, limit=100_000)]
+    assert "a person marked the robot's episode a success" in messages
+    assert "record demos: 2 episodes to drive by hand" in messages
+
+
+def test_a_demo_moves_only_by_hand_and_the_success_key_ends_it_and_teaches_the_classifier(
+    arm: tuple[Settings, Store, Path],  # noqa: F811 - the fixture
+    tmp_path: Path,
+) -> None:
+    """Record demos (1 episode) on the recording arm: the arm stands still while no key is held (the policy idle),
+    moves with the person's actions only, and the success key ends the episode (the arm goes home: a reset) and
+    gives the classifier that episode's last frames. Then the policy acts again."""
+    settings, store, log = arm
+    run_id = a_run(store, initial_random_steps=50, control_hz=ARM_HZ, episode_steps=200)
+    env = arm_env(settings, log)
+    client = TestClient(create_app(Settings(_env_file=None, database_url=store.url, data_dir=settings.data_dir)))
+    with (
+        client,
+        robot_subprocess(env, ENV_ID, store, tmp_path / "robot.log"),
+        learner_process(env, tmp_path / "learner.log"),
+    ):
+        wait_until(lambda: len(calls_after(log, 0, ("action",))) >= 5, 120, "the arm to move")
+        assert client.post(f"/api/runs/{run_id}/robot/demos", json={"episodes": 1}).status_code == 202
+        wait_until(
+            lambda: (store.robot_status(run_id=run_id).actor_state or "").startswith("demo"), 60,
+            "the demo episode to begin (after the episode under way)",
+        )  # fmt: skip
+        waiting = time.monotonic()
+        time.sleep(1.5)
+        assert calls_after(log, waiting, ("action",)) == []  # nobody holds a key: the arm stands still
+        driving = time.monotonic()
+        end = driving + 1.5
+        while time.monotonic() < end:
+            client.post(f"/api/runs/{run_id}/robot/drive", json={"action": [PERSON, 0.0]})
+            time.sleep(0.05)
+        client.post(f"/api/runs/{run_id}/robot/hand-back")
+        moved = [value for what, value, _ in recorded_by(log) if what == "sent"]
+        assert moved[-10:] == [pytest.approx(PERSON)] * 10
+        marked = time.monotonic()
+        assert client.post(f"/api/runs/{run_id}/robot/success").status_code == 202
+        wait_until(lambda: calls_after(log, marked, ("reset",)), 10, "the demo to end (the arm home)")
+        wait_until(lambda: calls_after(log, marked, ("action",)), 30, "the policy to act again")
+        wait_until(
+            lambda: any("marked a success" in e.message and "positives" in e.message
+                        for e in store.events(run_id=run_id, limit=100_000)),
+            30, "the learner to take the episode's last frames as positives",
+        )  # fmt: skip

@@ -5,7 +5,7 @@ the robots at work, for the pages."""
 from fastapi import APIRouter, HTTPException, Response
 
 from app.deps import ReadAuth, RunId, SameSiteRead, StoreDep, WriteAuth
-from app.schemas import WRITE_ERRORS, DriveIn, EvaluateIn, RobotStatusOut, errors
+from app.schemas import WRITE_ERRORS, DemosIn, DriveIn, EvaluateIn, RobotStatusOut, errors
 from app.views import robot_status_out
 from contract.store import NotFound, RobotStatus, Store
 
@@ -74,6 +74,25 @@ def drive_robot(run_id: RunId, body: DriveIn, store: StoreDep, _auth: WriteAuth)
 def hand_back_robot(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RobotStatusOut:
     """End a take-over: the policy drives again from the actor's next step."""
     return robot_out(store, store.hand_back_robot(run_id=run_id))
+
+
+@run_robot.post(
+    "/{run_id}/robot/success", response_model=RobotStatusOut, status_code=202, responses=errors(404, 409, *WRITE_ERRORS)
+)
+def mark_success(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RobotStatusOut:
+    """The success key (G): the episode under way, or the one that just ended, is a success; its last frames join
+    the classifier's positives. It also ends a demo episode. 409 before the robot's actor has reported."""
+    return robot_out(store, store.mark_success(run_id=run_id))
+
+
+@run_robot.post(
+    "/{run_id}/robot/demos", response_model=RobotStatusOut, status_code=202, responses=errors(404, 409, *WRITE_ERRORS)
+)
+def record_demos(run_id: RunId, body: DemosIn, store: StoreDep, _auth: WriteAuth) -> RobotStatusOut:
+    """Record demos: the robot's next `episodes` episodes are driven by hand; in each the arm moves only while the
+    person holds a drive key (the policy idle), and the success key ends it. 409 while earlier demos are pending or
+    before the robot's actor has reported."""
+    return robot_out(store, store.request_demos(run_id=run_id, episodes=body.episodes))
 
 
 @run_robot.get(

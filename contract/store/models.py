@@ -301,6 +301,9 @@ class RobotControl(Base):
     # is fresh for the actor for one control period from when it saw it)
     takeover_action: Mapped[list[float] | None] = mapped_column(JSON)
     takeover_seq: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
+    # the person's success key (how many times pressed) and Record demos (episodes driven by hand not begun yet)
+    success_marks: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    demo_pending: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     # the link to an actor on another host: the learner's keep-alive, its newest policy in the checkpoint store,
     # the step its run starts at (None: not open), its close; the actor's action and observation spaces
     learner_seen_at: Mapped[datetime | None] = mapped_column(UTCDateTime)

@@ -57,6 +57,10 @@ class RobotStatus:
     """How many actions the person has sent: a new one is fresh for one control period from when the actor saw it."""
     actor_spaces: dict[str, Any] | None
     """The actor's action bounds, observation shape and control rate, as it announced them."""
+    success_marks: int
+    """How many times a person pressed the success key (the episode's last frames are a success)."""
+    demo_pending: int
+    """Episodes of Record demos not begun yet: each is driven by hand, the policy idle."""
 
 
 _STATUS_COLUMNS = (
@@ -72,19 +76,22 @@ _STATUS_COLUMNS = (
     RobotControl.takeover_action,
     RobotControl.takeover_seq,
     RobotControl.actor_spaces,
+    RobotControl.success_marks,
+    RobotControl.demo_pending,
 )
 
 
 def _status(row: Any) -> RobotStatus:
     (
         run_id, stop_requested, reset_needed, reset_count, actor_state, actor_seen_at, frame_at, pending, round_,
-        takeover_action, takeover_seq, actor_spaces,
+        takeover_action, takeover_seq, actor_spaces, success_marks, demo_pending,
     ) = row  # fmt: skip
     return RobotStatus(
         run_id=run_id, stop_requested=bool(stop_requested), reset_needed=bool(reset_needed),
         reset_count=int(reset_count), actor_state=actor_state, actor_seen_at=actor_seen_at, frame_at=frame_at,
         evaluation_pending=int(pending), evaluation_round=int(round_), takeover_action=takeover_action,
-        takeover_seq=int(takeover_seq or 0), actor_spaces=actor_spaces,
+        takeover_seq=int(takeover_seq or 0), actor_spaces=actor_spaces, success_marks=int(success_marks or 0),
+        demo_pending=int(demo_pending or 0),
     )  # fmt: skip
 
 
@@ -93,7 +100,7 @@ def _no_controls(run_id: int) -> RobotStatus:
     return RobotStatus(
         run_id=run_id, stop_requested=False, reset_needed=False, reset_count=0, actor_state=None,
         actor_seen_at=None, frame_at=None, evaluation_pending=0, evaluation_round=0, takeover_action=None,
-        takeover_seq=0, actor_spaces=None,
+        takeover_seq=0, actor_spaces=None, success_marks=0, demo_pending=0,
     )  # fmt: skip
 
 
@@ -221,6 +228,49 @@ class RobotStore(StoreBase):
                 condition=RobotControl.evaluation_pending > 0,
             )  # fmt: skip
         return None if status is None else status.evaluation_round
+
+    def mark_success(self, *, run_id: int) -> RobotStatus:
+        """The person's success key: the robot's episode under way (or just ended) ends in a success, so its last
+        frames join f_psi's positives; in a demo episode it also ends the episode. An event says so. Conflict before
+        an actor has reported."""
+        with self.writing() as session:
+            status = self._update(
+                session, run_id=run_id, values={"success_marks": RobotControl.success_marks + 1},
+                condition=RobotControl.actor_seen_at.is_not(None),
+            )  # fmt: skip
+            if status is None:
+                self._controls_row(session, run_id=run_id, create=False)  # (NotFound for an unknown run)
+                raise Conflict("no actor drives this run's robot: nothing to mark a success")
+            session.add(Event(run_id=run_id, message="a person marked the robot's episode a success"))
+            return status
+
+    def request_demos(self, *, run_id: int, episodes: int) -> RobotStatus:
+        """Record demos: the actor's next `episodes` episodes are driven by hand (the robot waits for the person's
+        keys, the policy idle); an event says so. InvalidInput unless 1 <= episodes <= EVALUATION_EPISODES_MAX;
+        Conflict while earlier demos are pending or before an actor has reported."""
+        if isinstance(episodes, bool) or not isinstance(episodes, int) or not 1 <= episodes <= EVALUATION_EPISODES_MAX:
+            raise InvalidInput(f"episodes must be a whole number from 1 to {EVALUATION_EPISODES_MAX}, not {episodes!r}")
+        with self.writing() as session:
+            idle = (RobotControl.demo_pending <= 0) & RobotControl.actor_seen_at.is_not(None)
+            status = self._update(session, run_id=run_id, values={"demo_pending": episodes}, condition=idle)
+            if status is None:
+                current = self._controls_row(session, run_id=run_id, create=False)  # (NotFound for an unknown run)
+                if current.actor_seen_at is None:
+                    raise Conflict("no actor drives this run's robot: demos are for runs in real time")
+                raise Conflict(f"demos are under way: {current.demo_pending} episodes not begun yet")
+            count = f"{episodes} episode" + ("s" if episodes > 1 else "")
+            session.add(Event(run_id=run_id, message=f"record demos: {count} to drive by hand"))
+            return status
+
+    def take_demo_episode(self, *, run_id: int) -> bool:
+        """The actor, as an episode begins: one episode of Record demos taken (demo_pending - 1, in one statement);
+        False when none is pending."""
+        with self.writing() as session:
+            status = self._update(
+                session, run_id=run_id, values={"demo_pending": RobotControl.demo_pending - 1},
+                condition=RobotControl.demo_pending > 0,
+            )  # fmt: skip
+        return status is not None
 
     def drive_robot(self, *, run_id: int, action: list[float]) -> RobotStatus:
         """A person's action for the run's robot (a take-over: the page sends one every half control period while a

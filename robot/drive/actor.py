@@ -48,6 +48,7 @@ from contract.actor_messages import (
     Ready,
     Start,
     StateChange,
+    SuccessMarked,
     Transition,
 )
 from contract.config import TrainConfig
@@ -106,6 +107,7 @@ class ActorState:
     STARTING = "starting"
     ACTING = "acting"
     DRIVEN_BY_HAND = "driven by hand"
+    DEMO_WAITING = "demo: waiting for the person's keys"
     WAITING_FOR_RESET = "waiting for reset"
     STOPPED = "stopped"
     LEARNER_GONE = "held safe: learner gone"
@@ -148,6 +150,14 @@ class Controls:
     takeover_seq: int = 0
     takeover_seen_at: float = -np.inf
     """When the control thread first saw the person's newest action (monotonic): it is fresh for one period."""
+    success_marks: int | None = None
+    """How many times the success key was pressed, as last read (None: not read yet)."""
+    demo_pending: int = 0
+    """Episodes of Record demos not begun yet."""
+    demo: bool = False
+    """The episode under way is a demo: driven by hand only (the robot waits while no key is held)."""
+    demo_ended: bool = False
+    """The success key ended the demo episode under way."""
 
 
 # ====================================================================== the actor process
@@ -249,6 +259,8 @@ class ActorLoop:
                     controls.stop_requested, controls.reset_count = status.stop_requested, status.reset_count
                     controls.evaluation_pending = status.evaluation_pending
                     self._take_person_action(status.takeover_action, status.takeover_seq, answered)
+                    controls.demo_pending = status.demo_pending
+                    self._take_success_marks(status.success_marks)
                 if status.stop_requested:
                     self._disarm()
                     self.wake.set()
@@ -263,6 +275,16 @@ class ActorLoop:
         if seq != controls.takeover_seq:
             controls.takeover_seq, controls.takeover_seen_at = seq, seen_at
         controls.takeover_action = np.clip(np.asarray(action, dtype=np.float32), -1.0, 1.0)
+
+    def _take_success_marks(self, marks: int) -> None:
+        """A success key pressed since the last read goes to the learner (and ends a demo episode)."""
+        controls = self.controls
+        if controls.success_marks is not None and marks > controls.success_marks:
+            self.outbox.put(SuccessMarked())
+            if controls.demo:
+                controls.demo_ended = True
+                self.wake.set()
+        controls.success_marks = marks
 
     def _person_action(self) -> np.ndarray | None:
         """The person's action while they drive by hand: sent within one control period of when it was seen, so a
@@ -380,9 +402,24 @@ class ActorLoop:
             if delay > 0:  # (woken early by a stop: the hold is looked at again, then the rest is waited)
                 self.wake.wait(delay)
                 continue
-            if not self._may_move():  # (the step is sent late, once the hold says so, or never)
+            if self.controls.demo_ended:  # the success key ended the demo: the next episode
+                obs = self._begin_episode()
+                if obs is None:
+                    return
+                action, length, last_step = self._action(obs), 0, None
+                self.pace.restart(time.monotonic())
                 continue
             person = self._person_action()  # (a take-over: the person's action instead, on the same path)
+            if person is None and self.controls.demo:  # a demo moves only by hand: it waits for the keys
+                self._set_state(ActorState.DEMO_WAITING)
+                self.wake.wait(CONTROL_POLL_SECONDS)
+                self.pace.restart(time.monotonic())
+                continue
+            if not self._may_move():  # (the step is sent late, once the hold says so, or never)
+                continue
+            person = self._person_action()
+            if person is None and self.controls.demo:
+                continue
             sent = action if person is None else person
             self._set_state(ActorState.ACTING if person is None else ActorState.DRIVEN_BY_HAND)
             started = time.monotonic()
@@ -561,10 +598,14 @@ class ActorLoop:
                     raw, info = look()
                 break
         self.policy.episode_begins()
-        self.controls.evaluation_round = None
-        if self.controls.evaluation_pending > 0:  # (the store unreachable: a training episode, the arm held)
+        controls = self.controls
+        controls.evaluation_round, controls.demo, controls.demo_ended = None, False, False
+        if controls.evaluation_pending > 0:  # (the store unreachable: a training episode, the arm held)
             with contextlib.suppress(Exception):
-                self.controls.evaluation_round = self.store.take_evaluation_episode(run_id=run_id)
+                controls.evaluation_round = self.store.take_evaluation_episode(run_id=run_id)
+        if controls.evaluation_round is None and controls.demo_pending > 0:
+            with contextlib.suppress(Exception):
+                controls.demo = self.store.take_demo_episode(run_id=run_id)
         obs = model_image(raw, cfg.image_size, cfg.env_id)
         display = display_image(self.env, cfg.display_size, obs)
         self.frame = self._camera_view(display)
