@@ -12,6 +12,7 @@ from conftest import STANDIN, create_run, robot_subprocess, run_live_server
 from playwright.sync_api import Page, expect
 from recording_arm import ENV_ID, recorded_by
 from test_actor import arm_env, real_time_config
+from test_browser_robot import _frame
 from test_stop_means_stop import a_run, arm, calls_after, learner_process, wait_until  # noqa: F401 - a fixture
 
 from contract.settings import Settings
@@ -117,3 +118,41 @@ def test_a_held_key_cannot_outrun_the_robots_pace_or_a_stop(
         resumed = time.monotonic()
         wait_until(lambda: len(_sent(log, resumed)) >= 5, 30, "the arm to move after Resume")
         assert all(value != pytest.approx(1.0) for _, value, _ in _sent(log, resumed)[:5])  # the policy's
+
+
+def test_the_success_key_record_demos_and_a_call_for_help_on_the_run_page(
+    desktop: Page, live_server: str, store: Store
+) -> None:
+    """The actor is played through the store here, as the robot's process calls it: G marks a success, Record demos
+    asks for episodes by hand, and a run whose recent questions were all "no" asks for help on its page and on the
+    queue's robot card."""
+    from test_takeover import announced  # noqa: PLC0415
+
+    page = desktop
+    run = store.create_run(env_id=ENV_ID, algorithm="vice_raq", config={}, total_steps=5000, name="arm")
+    assert store.claim_next_run(worker="robot-learner").id == run.id
+    store.heartbeat(run_id=run.id, worker="robot-learner", step=3000, status="training")
+    store.report_actor(run_id=run.id, state="acting")
+    announced(store, run.id)
+    page.goto(f"{live_server}/runs/{run.id}")
+    expect(page.locator("#takeover-keys")).to_contain_text("G: the episode is a success")
+    expect(page.locator("#takeover-help")).to_have_text("")
+    page.keyboard.press("g")
+    expect(page.locator(".toast").last).to_contain_text("Marked a success")
+    assert store.robot_status(run_id=run.id).success_marks == 1
+    page.locator("#demo-episodes").fill("2")
+    page.locator("#record-demos").click()
+    expect(page.locator("#takeover-demos")).to_contain_text("2 more to begin")
+    expect(page.locator("#record-demos")).to_be_disabled()
+    assert store.robot_status(run_id=run.id).demo_pending == 2
+
+    for number in range(10):  # ten questions after the warm-up, every answer no
+        query = store.post_query(
+            run_id=run.id, env_step=1500 + 100 * number, model_png=_frame((20, 20)), display_png=_frame((20, 20)),
+            score=-2.0,
+        )  # fmt: skip
+        store.answer_query(query_id=query.id, success=False)
+        store.report_actor(run_id=run.id, state="acting")
+    expect(page.locator("#takeover-help")).to_contain_text("The run asks for help", timeout=10_000)
+    page.goto(f"{live_server}/queue")
+    expect(page.locator(f'.robot-card[data-run-id="{run.id}"] .robot-help')).to_be_visible()
