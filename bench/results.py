@@ -11,8 +11,9 @@ within the target when it reached the eval success rate within the env-step budg
 budget by then. The noisy oracle's rows (`bench/seeds.py --noise 0.1 --csv docs/results/seeds-noise.csv`) get
 their own table.
 
-The stand-in robot's table and plot: each row of docs/results/robot.csv (bench/robot_standin.py, one per seed and
-preset) against that bench's TARGETS, and each seed's evaluations from docs/results/robot/<preset>-seed<N>.json.
+The stand-in robot's table and plot: each row of docs/results/robot.csv (bench/robot_standin.py, one per seed,
+preset and help) against that bench's TARGETS, and each seed's evaluations from docs/results/robot/<preset>[-<help>]-
+seed<N>.json.
 
 The comparison: every folder of docs/results/compare/ is one bench/learn.py run, `pusher-<method>-seed<N>/`
 (its curve.csv and summary.json); bench/compare.py --by-method makes its table and its plot of each method's
@@ -115,12 +116,14 @@ def summary_lines(
             f"| {', '.join(sorted({row['device'] for row in rows}))} "
             f"| {', '.join(sorted({row['commit'] for row in rows}))} |"
         )
-    for preset, rows in (robot or {}).items():
+    for group, rows in (robot or {}).items():
+        preset, helped = group.split(", ")
         hit = [row for row in rows if robot_within(row)]
         steps = median([int(row["steps_to_target"]) for row in hit])
         queries = median([int(row["queries"]) for row in hit])
+        hands = "" if helped == "none" else f", a person's {helped}"
         lines.append(
-            f"| pusher stand-in, 5 Hz, {preset} | {robot_target_text(preset)} "
+            f"| pusher stand-in, 5 Hz, {preset}{hands} | {robot_target_text(preset)} "
             f"| {len(hit)} of {len(rows)} (seeds {', '.join(row['seed'] for row in rows)}) "
             f"| {thousands(steps) if steps is not None else '-'} | {f'{queries:g}' if queries is not None else '-'} "
             f"| {person_minutes(rows)} | {', '.join(sorted({row['device'] for row in rows}))} "
@@ -136,14 +139,15 @@ def person_minutes(rows: list[dict[str, str]]) -> str:
 
 
 def robot_rows(path: Path = ROBOT_CSV) -> dict[str, list[dict[str, str]]]:
-    """robot.csv's rows by preset, by seed."""
+    """robot.csv's rows by "preset, help" (a row from before the help column: none), by seed."""
     if not path.exists():
         return {}
-    by_preset: dict[str, list[dict[str, str]]] = {}
+    by_group: dict[str, list[dict[str, str]]] = {}
     with path.open() as file:
-        for row in sorted(csv.DictReader(file), key=lambda row: (row["preset"], int(row["seed"]))):
-            by_preset.setdefault(row["preset"], []).append(row)
-    return by_preset
+        rows = [{**row, "help": row.get("help") or "none"} for row in csv.DictReader(file)]
+    for row in sorted(rows, key=lambda row: (row["preset"], row["help"] != "none", row["help"], int(row["seed"]))):
+        by_group.setdefault(f"{row['preset']}, {row['help']}", []).append(row)
+    return by_group
 
 
 def robot_within(row: dict[str, str]) -> bool:
@@ -158,24 +162,25 @@ def robot_target_text(preset: str) -> str:
     return f"{ROBOT_RATE:.0%} within {thousands(steps)}, ≤ {queries} queries"
 
 
-def robot_lines(by_preset: dict[str, list[dict[str, str]]]) -> list[str]:
+def robot_lines(by_group: dict[str, list[dict[str, str]]]) -> list[str]:
     lines = [
-        "| preset | seed | steps to 90% | env steps run | queries | SAC updates per robot step | person minutes "
-        "| resets | robot's wait for them (min) | minutes | within the target | device | commit |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| preset | help | seed | steps to 90% | env steps run | queries | SAC updates per robot step | person minutes "
+        "| take-over minutes | resets | robot's wait for them (min) | minutes | within the target | device | commit |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
-    for preset, rows in by_preset.items():
+    for rows in by_group.values():
         for row in rows:
             steps = steps_reached(row)
             wait = float(row["reset_wait_seconds"] or 0) / 60
+            by_hand = float(row.get("takeover_seconds") or 0) / 60
             lines.append(
-                f"| {preset} | {row['seed']} | {steps} | {int(row['env_steps']):,} | {row['queries']} "
-                f"| {row['updates_per_step']} | {row['person_minutes']} | {row['resets']} | {wait:.1f} "
-                f"| {row['wall_minutes']} | {'yes' if robot_within(row) else 'no'} | {row['device']} "
-                f"| {row['commit']} |"
+                f"| {row['preset']} | {row['help']} | {row['seed']} | {steps} | {int(row['env_steps']):,} "
+                f"| {row['queries']} | {row['updates_per_step']} | {row['person_minutes']} | {by_hand:.1f} "
+                f"| {row['resets']} | {wait:.1f} | {row['wall_minutes']} | {'yes' if robot_within(row) else 'no'} "
+                f"| {row['device']} | {row['commit']} |"
             )
     if len(lines) == 2:
-        lines.append("| - | - | - | - | - | - | - | - | - | - | - | - | - |")
+        lines.append("| - | - | - | - | - | - | - | - | - | - | - | - | - | - | - |")
     return lines
 
 
@@ -185,7 +190,9 @@ def plot_robot() -> None:
     for path in sorted(ROBOT_FIGURES.glob("*.json")) if ROBOT_FIGURES.exists() else []:
         figures = json.loads(path.read_text())
         points = [(float(row["step"]), float(row["success_rate"])) for row in figures["evaluations"]]
-        series[f"{figures['preset']} seed {figures['seed']}"] = points
+        helped = figures.get("help", "none")
+        hands = "" if helped == "none" else f", {helped}"
+        series[f"{figures['preset']}{hands} seed {figures['seed']}"] = points
     if series:
         title = "pusher stand-in at 5 Hz: eval success by the env's ground truth, per seed"
         line_plot(ROBOT_PLOT, series, title=title, y_range=(0.0, 1.0))

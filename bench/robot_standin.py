@@ -386,6 +386,7 @@ def write_rows(path: Path, rows: list[dict]) -> None:
     if path.exists():
         with path.open() as file:
             kept = [{**row, "help": row.get("help") or "none"} for row in csv.DictReader(file)]
+    rows = [{**row, "help": row.get("help") or "none"} for row in rows]
     fresh = {tuple(str(row[k]) for k in ROW_KEY) for row in rows}
     kept = [row for row in kept if tuple(row[k] for k in ROW_KEY) not in fresh]
     path.parent.mkdir(parents=True, exist_ok=True)

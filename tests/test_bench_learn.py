@@ -207,14 +207,22 @@ def test_the_robot_table_is_made_from_robot_csv(tmp_path: Path) -> None:
     path = tmp_path / "robot.csv"
     write_rows(path, [row(0, "", 50, 9.0, commit="old")])
     write_rows(path, [row(0, 12_000, 48, 3.0), row(1, 14_000, 51, 5.0), row(2, 16_000, 40, 7.0)])
-    by_preset = robot_rows(path)
-    assert [r["seed"] for r in by_preset["cpu_robot"]] == ["0", "1", "2"]  # seed 0's old row replaced
-    lines = robot_lines(by_preset)
-    assert "| cpu_robot | 0 | 12,000 | 12,000 | 48 | 2.0 | 3.0 | 100 | 1.0 | 40.0 | yes | cpu | ccc |" in lines
-    assert any(line.startswith("| cpu_robot | 1 | 14,000 |") and "| no |" in line for line in lines)  # 51 queries
-    assert any(line.startswith("| cpu_robot | 2 | 16,000 |") and "| no |" in line for line in lines)  # past 15K
-    summary = summary_lines({}, by_preset)
+    helped = {**row(0, 5_000, 20, 4.0), "help": "interventions", "takeover_seconds": 180.0}
+    write_rows(path, [helped])  # (beside seed 0's row without help, not in its place)
+    by_group = robot_rows(path)
+    assert [r["seed"] for r in by_group["cpu_robot, none"]] == ["0", "1", "2"]  # seed 0's old row replaced
+    assert [r["seed"] for r in by_group["cpu_robot, interventions"]] == ["0"]
+    lines = robot_lines(by_group)
+    assert (
+        "| cpu_robot | none | 0 | 12,000 | 12,000 | 48 | 2.0 | 3.0 | 0.0 | 100 | 1.0 | 40.0 | yes | cpu | ccc |"
+    ) in lines
+    assert any(line.startswith("| cpu_robot | none | 1 | 14,000 |") and "| no |" in line for line in lines)
+    assert any(line.startswith("| cpu_robot | none | 2 | 16,000 |") and "| no |" in line for line in lines)
+    assert any(line.startswith("| cpu_robot | interventions | 0 | 5,000 |") and "| 4.0 | 3.0 |" in line
+               for line in lines)  # fmt: skip
+    summary = summary_lines({}, by_group)
     assert (
         "| pusher stand-in, 5 Hz, cpu_robot | 90% within 15K, ≤ 50 queries | 1 of 3 (seeds 0, 1, 2) | 12K | 48 "
         "| 5.0 | cpu | ccc |"
     ) in summary
+    assert any(line.startswith("| pusher stand-in, 5 Hz, cpu_robot, a person's interventions |") for line in summary)
