@@ -1,6 +1,7 @@
 """The paper's three simulated tasks as Gymnasium environments: pixels in, end-effector displacements out.
 
-`import sim` registers `VisualPusher-v0`, `VisualDoor-v0` and `VisualPicker-v0` (100-step episodes).
+`import sim` registers `VisualPusher-v0`, `VisualDoor-v0`, `VisualPicker-v0` and `VisualBookshelf-v0` (100-step
+episodes).
 This package imports no torch and no database code.
 """
 
@@ -14,12 +15,14 @@ TASKS: dict[str, str] = {
     "pusher": "VisualPusher-v0",
     "door": "VisualDoor-v0",
     "picker": "VisualPicker-v0",
+    "bookshelf": "VisualBookshelf-v0",
 }
 
 _ENTRY_POINTS: dict[str, str] = {
     "VisualPusher-v0": "sim.pusher:VisualPusherEnv",
     "VisualDoor-v0": "sim.door:VisualDoorEnv",
     "VisualPicker-v0": "sim.picker:VisualPickerEnv",
+    "VisualBookshelf-v0": "sim.bookshelf:VisualBookshelfEnv",
 }
 
 MAX_EPISODE_STEPS = 100
@@ -32,6 +35,7 @@ PRESETS: dict[str, dict[str, int]] = {
     "VisualPusher-v0": {"query_every": 5000, "query_budget": 20},
     "VisualDoor-v0": {"query_every": 1000, "query_budget": 50},
     "VisualPicker-v0": {"query_every": 1000, "query_budget": 50},
+    "VisualBookshelf-v0": {"query_every": 750, "query_budget": 20},
 }
 """Per task, the training-config fields (of PRESET_FIELDS) a run of it starts from (every other field: its
 default); how well each learns with them is in docs/results.md."""

@@ -1,10 +1,11 @@
 """Goal examples for the simulated tasks: images of success states, as the paper's 10 goal examples per task.
 
 Pusher: the scene is put straight into a success state (mug on the coaster with a little noise, hand at a varied
-place behind it). Door and picker: the scripted controller runs from a seeded reset until it succeeds, settles at a
-varied nearby pose (hook still in the handle; ball held at a point near the goal), and the final frame is taken.
-Every example is checked to be a success. The goal itself (coaster, 45 degrees, point above the table) is fixed in
-the model and never modified, so it is identical across examples.
+place behind it). Bookshelf: the held book is put into either empty slot, at a varied depth and offset, so the
+examples show both slots. Door and picker: the scripted controller runs from a seeded reset until it succeeds,
+settles at a varied nearby pose (hook still in the handle; ball held at a point near the goal), and the final frame
+is taken. Every example is checked to be a success. The goal itself (coaster, 45 degrees, point above the table,
+the two slots) is fixed in the model and never modified, so it is identical across examples.
 
     raq goals --task pusher -n 10 --out DIR [--seed S] [--image-size 48] [--display]
 """
@@ -21,6 +22,7 @@ import numpy as np
 from PIL import Image
 
 from sim import MAX_EPISODE_STEPS, TASKS
+from sim.bookshelf import VisualBookshelfEnv
 from sim.picker import VisualPickerEnv
 from sim.pusher import VisualPusherEnv
 from sim.scripted import scripted_action
@@ -50,6 +52,13 @@ def pusher_success_state(env: VisualPusherEnv, rng: np.random.Generator) -> None
     gap = env.mug_radius + env.pusher_radius + rng.uniform(0.002, 0.04)
     hand_xy = mug + gap * np.array([np.cos(bearing), np.sin(bearing)])
     env.set_hand_pos(np.array([hand_xy[0], hand_xy[1], env.hand_height]))
+
+
+def bookshelf_success_state(env: VisualBookshelfEnv, rng: np.random.Generator) -> None:
+    """The held book in either empty slot (drawn), up to 1 cm off its centre, its bottom 0-5 cm above the floor."""
+    slot = env.slot_x[int(rng.integers(0, len(env.slot_x)))]
+    bottom = rng.uniform(0.0005, env.inserted_height - 0.01)
+    env.set_hand_pos(np.array([slot + rng.uniform(-0.01, 0.01), env.shelf_y, bottom + env.book_height]))
 
 
 def _settle_action(env: gymnasium.Env, target: np.ndarray) -> np.ndarray:
@@ -89,7 +98,7 @@ def _scripted_success(env: gymnasium.Env, rng: np.random.Generator) -> bool:
 def make_goal_examples(
     task: str, n: int, *, seed: int = 0, image_size: int = 48, display_size: int = 256
 ) -> list[GoalExample]:
-    """`n` distinct success states of `task` ("pusher", "door" or "picker"), reproducible from `seed`."""
+    """`n` distinct success states of `task` (a name of sim.TASKS), reproducible from `seed`."""
     if task not in TASKS:
         raise ValueError(f"unknown task {task!r}; choose from {sorted(TASKS)}")
     if n < 0:
@@ -105,6 +114,8 @@ def make_goal_examples(
             task_env = env.unwrapped
             if isinstance(task_env, VisualPusherEnv):
                 pusher_success_state(task_env, rng)
+            elif isinstance(task_env, VisualBookshelfEnv):
+                bookshelf_success_state(task_env, rng)
             elif not _scripted_success(env, rng):
                 continue
             info = task_env.get_info()

@@ -14,6 +14,7 @@ import numpy as np
 
 from sim import TASKS
 from sim.base import SawyerMocapEnv
+from sim.bookshelf import VisualBookshelfEnv
 from sim.door import VisualDoorEnv
 from sim.picker import VisualPickerEnv
 from sim.pusher import VisualPusherEnv
@@ -103,10 +104,21 @@ def picker_action(env: VisualPickerEnv) -> np.ndarray:
     return np.array([0.0, 0.0, 0.0, 1.0])
 
 
+def bookshelf_action(env: VisualBookshelfEnv) -> np.ndarray:
+    """Over the nearer empty slot at the start height, then straight down into it."""
+    hand, step = env.hand_pos, env.action_scale
+    slot = env.slot_x[int(np.argmin(np.abs(env.slot_x - hand[0])))]
+    if abs(slot - hand[0]) < 0.004:
+        return np.array([np.clip((slot - hand[0]) / step, -1.0, 1.0), -1.0])
+    height = np.clip((env.hand_init[2] - hand[2]) / step, -1.0, 1.0)  # (up first: a standing book is in the way)
+    return np.array([np.clip((slot - hand[0]) / step, -1.0, 1.0), height])
+
+
 _CONTROLLERS: dict[type[SawyerMocapEnv], Callable[..., np.ndarray]] = {
     VisualPusherEnv: pusher_action,
     VisualDoorEnv: door_action,
     VisualPickerEnv: picker_action,
+    VisualBookshelfEnv: bookshelf_action,
 }
 
 

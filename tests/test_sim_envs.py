@@ -23,7 +23,7 @@ from sim.picker import VisualPickerEnv
 from sim.pusher import VisualPusherEnv
 
 ENV_IDS = list(sim.TASKS.values())
-ACTION_DIMS = {"VisualPusher-v0": 2, "VisualDoor-v0": 3, "VisualPicker-v0": 4}
+ACTION_DIMS = {"VisualPusher-v0": 2, "VisualDoor-v0": 3, "VisualPicker-v0": 4, "VisualBookshelf-v0": 2}
 # Just inside / just outside a threshold.
 EPS = 1e-4
 
@@ -47,8 +47,11 @@ def changed_fraction(a: np.ndarray, b: np.ndarray, threshold: int = 30) -> float
     return float((np.abs(a.astype(int) - b.astype(int)).max(axis=-1) > threshold).mean())
 
 
-def test_import_registers_the_three_tasks() -> None:
-    assert sim.TASKS == {"pusher": "VisualPusher-v0", "door": "VisualDoor-v0", "picker": "VisualPicker-v0"}
+def test_import_registers_the_tasks() -> None:
+    assert sim.TASKS == {
+        "pusher": "VisualPusher-v0", "door": "VisualDoor-v0", "picker": "VisualPicker-v0",
+        "bookshelf": "VisualBookshelf-v0",
+    }  # fmt: skip
     for env_id in ENV_IDS:
         assert gymnasium.spec(env_id).max_episode_steps == 100
 
@@ -321,3 +324,19 @@ def test_a_state_snapshot_renders_that_state_later_and_leaves_the_simulation_as_
         obs_twin, *_, info_twin = twin.step(action)
         assert np.array_equal(obs_shown, obs_twin)
     assert np.array_equal(info_shown["hand_pos"], info_twin["hand_pos"])
+
+
+def test_the_held_book_goes_down_into_either_empty_slot_and_nowhere_else(make_env) -> None:
+    """Lowered over an empty slot the book goes in (a success, in either slot); over a standing book, or between
+    two, it stops on top (no success)."""
+    env = make_env("VisualBookshelf-v0").unwrapped
+    reached = {}
+    for x in (*env.slot_x, 0.0, 0.02, -0.14):
+        env.reset(seed=0)
+        env.set_hand_pos(np.array([x, env.shelf_y, env.hand_init[2]]))
+        for _ in range(30):
+            _, _, _, _, info = env.step(np.array([0.0, -1.0]))
+        reached[round(float(x), 2)] = (info["success"], round(info["book_bottom"], 2))
+    assert reached[-0.08][0] == reached[0.08][0] == 1.0
+    assert {reached[x][0] for x in (0.0, 0.02, -0.14)} == {0.0}
+    assert min(reached[x][1] for x in (0.0, 0.02, -0.14)) >= 0.14  # (on top of the row: 14.4-16 cm)
