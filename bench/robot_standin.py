@@ -195,7 +195,7 @@ def seed_config(args: argparse.Namespace, seed: int) -> tuple[str, TrainConfig]:
     return preset, config
 
 
-def add_camera_goal_set(store: Store, *, count: int, image_size: int, env_id: str) -> int:
+def add_camera_goal_set(store: Store, *, count: int, image_size: int, env_id: str = STANDIN) -> int:
     """A goal set of `count` photos from the stand-in's own camera (robot.standin.goal_photos), made as the
     Camera panel's capture makes them (the model's copy centre-cropped and resized as every observation is)."""
     from PIL import Image  # noqa: PLC0415
