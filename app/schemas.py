@@ -547,7 +547,8 @@ class RobotStatusOut(RowOut):  # model_validate(row_with(robot_status, run_name=
     action_dims: int | None = Field(description="The robot's action dimensions (null before its actor announced).")
     control_hz: float | None = Field(description="The robot's control rate (null before its actor announced).")
     asks_for_help: bool = Field(
-        description="No asked state has been a success lately (the reward's verdict): a take-over would show the way."
+        description="No asked state has been a success lately (the reward's verdict): a take-over would show the way. "
+        "Always false in the answers to drive and hand-back, which skip the verdict."
     )
     success_marks: int = Field(description="How many times a person pressed the success key.")
     demo_pending: int = Field(description="Episodes of Record demos not begun yet (each driven by hand).")

@@ -73,9 +73,10 @@ def run_detail(store: Store, run: Run) -> RunDetail:
     return RunDetail.model_validate(row_with(run, **values, config=config), from_attributes=True)
 
 
-def robot_status_out(status: RobotStatus, run: Run, store: Store) -> RobotStatusOut:
-    """A run's robot controls as the API shows them, with whether the run asks for a person's help."""
-    asks = reward_health_of(store, run).verdict.asks_for_help
+def robot_status_out(status: RobotStatus, run: Run, store: Store, *, judged: bool = True) -> RobotStatusOut:
+    """A run's robot controls as the API shows them, with whether the run asks for a person's help (`judged`
+    False: not judged, False; the take-over's answers, sent ten times a second, skip the verdict's reads)."""
+    asks = judged and reward_health_of(store, run).verdict.asks_for_help
     return RobotStatusOut.model_validate(
         row_with(status, run_name=run.name, asks_for_help=asks), from_attributes=True
     )

@@ -193,7 +193,8 @@ export class TakeOver {
     this.inFlight = true;
     try {
       const robot = await api("POST", `/api/runs/${this.robot.run_id}/robot/drive`, { action });
-      this.robot = { ...this.robot, ...robot };
+      const { asks_for_help: _unjudged, ...controls } = robot; // (drive's answer skips the verdict)
+      this.robot = { ...this.robot, ...controls };
       if (!this.driving) {
         this.driving = true;
         this.renderDriver();

@@ -17,8 +17,8 @@ router = APIRouter()
 NO_STORE = {"Cache-Control": "no-store"}
 
 
-def robot_out(store: Store, status: RobotStatus) -> RobotStatusOut:
-    return robot_status_out(status, store.get_run(run_id=status.run_id), store)
+def robot_out(store: Store, status: RobotStatus, *, judged: bool = True) -> RobotStatusOut:
+    return robot_status_out(status, store.get_run(run_id=status.run_id), store, judged=judged)
 
 
 @run_robot.get("/{run_id}/robot", response_model=RobotStatusOut, responses=errors(404))
@@ -67,13 +67,13 @@ def drive_robot(run_id: RunId, body: DriveIn, store: StoreDep, _auth: WriteAuth)
     limits, hold and Stop) for one control period from when it sees it. The page sends one every half period while
     a key is held; once they stop coming the policy drives again. 409 while Stop robot is pending or before the
     robot's actor has announced its action space; 422 for an action outside [-1, 1], 400 for one of the wrong length."""
-    return robot_out(store, store.drive_robot(run_id=run_id, action=body.action))
+    return robot_out(store, store.drive_robot(run_id=run_id, action=body.action), judged=False)
 
 
 @run_robot.post("/{run_id}/robot/hand-back", response_model=RobotStatusOut, responses=errors(404, *WRITE_ERRORS))
 def hand_back_robot(run_id: RunId, store: StoreDep, _auth: WriteAuth) -> RobotStatusOut:
     """End a take-over: the policy drives again from the actor's next step."""
-    return robot_out(store, store.hand_back_robot(run_id=run_id))
+    return robot_out(store, store.hand_back_robot(run_id=run_id), judged=False)
 
 
 @run_robot.post(
