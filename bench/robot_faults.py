@@ -114,8 +114,10 @@ class Bench:
     def start(self, name: str, *args: str, host: str | None = None) -> subprocess.Popen:
         log = (self.out / f"{name}.log").open("w")
         command = [sys.executable, "-m", "cli", *args]
+        # (a process group of its own: a paused process stays paused whatever its siblings do; in an orphaned group
+        # the kernel would SIGCONT every stopped member when one of them exits)
         process = subprocess.Popen(on_host(host, command) if host else command, env=self.env, stdout=log,
-                                   stderr=subprocess.STDOUT, cwd=ROOT)  # fmt: skip
+                                   stderr=subprocess.STDOUT, cwd=ROOT, process_group=0)  # fmt: skip
         self.processes.append(process)
         return process
 
@@ -228,7 +230,7 @@ class Bench:
         request(f"{url}/api/runs/{self.run_id}/robot/stop", "POST")
         held = self.wait_for_hold(after=asked)
         learner.send_signal(signal.SIGSTOP)
-        time.sleep(LEARNER_PAUSE_SECONDS)
+        stay_paused(learner, LEARNER_PAUSE_SECONDS)
         learner.send_signal(signal.SIGCONT)
         time.sleep(PAUSE_WATCH_SECONDS)
         moved = sum(1 for what, at, _ in calls(self.log) if what in ("action", "reset") and at > held)
@@ -278,6 +280,18 @@ class Bench:
         finally:
             connection.rollback()
             connection.close()
+
+
+def stay_paused(process: subprocess.Popen, seconds: float) -> None:
+    """Wait `seconds` while the SIGSTOPped `process` stays stopped; a process continued meanwhile by anybody else
+    would make the fault another one, so the bench says so and ends."""
+    started = time.monotonic()
+    while time.monotonic() < started + seconds:
+        with contextlib.suppress(OSError):
+            state = Path(f"/proc/{process.pid}/stat").read_text().rpartition(")")[2].split()[0]
+            if state not in ("T", "t") and time.monotonic() > started + 0.5:  # (the stop itself takes a moment)
+                raise SystemExit(f"process {process.pid} was continued by another signal after its SIGSTOP")
+        time.sleep(0.1)
 
 
 def _tracker_of_a_live_process(pid: int) -> bool:
@@ -360,7 +374,7 @@ def main() -> int:
         stopped = time.monotonic()
         children = bench.descendants(learner.pid)
         print(f"SIGSTOP {name}", flush=True)
-        time.sleep(STALE_SECONDS + STOP_EXTRA_SECONDS)
+        stay_paused(learner, STALE_SECONDS + STOP_EXTRA_SECONDS)
         learner.send_signal(signal.SIGCONT)
         bench.takeover("SIGSTOP past the stale time", stopped, since)
         bench.count_strays(children)
