@@ -349,7 +349,11 @@ def robot_subprocess(env: dict[str, str], env_id: str, store: Store, log: Path) 
     and it waits for a learner; interrupted (the arm held) at the end."""
     with log.open("wb") as output:
         process = subprocess.Popen(
-            [sys.executable, "-m", "cli", "robot", env_id], cwd=ROOT, env=env, stdout=output, stderr=subprocess.STDOUT,
+            [sys.executable, "-m", "cli", "robot", env_id],
+            cwd=ROOT,
+            env=env,
+            stdout=output,
+            stderr=subprocess.STDOUT,
             process_group=0,  # (paused by a test, it stays paused whatever the processes beside it do)
         )
         try:

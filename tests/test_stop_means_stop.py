@@ -44,7 +44,11 @@ def learner_process(env: dict[str, str], log: Path, host: str | None = None) -> 
     command = [sys.executable, "-m", "learner.worker", "--once", "--name", "learner"]
     with log.open("wb") as output:
         process = subprocess.Popen(
-            on_host(host, command) if host else command, cwd=ROOT, env=env, stdout=output, stderr=subprocess.STDOUT,
+            on_host(host, command) if host else command,
+            cwd=ROOT,
+            env=env,
+            stdout=output,
+            stderr=subprocess.STDOUT,
             process_group=0,  # (paused by a test, it stays paused whatever the processes beside it do)
         )
         try:
