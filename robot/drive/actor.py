@@ -380,34 +380,29 @@ class ActorLoop:
             time.sleep(0.01)
         if not self._take_robot():
             return
-        obs = self._begin_episode()
-        if obs is None:
-            return
-        # the action for each observation is worked out as soon as it is seen, so at the period's tick it is sent
-        # at once: the robot's clock does not wait for a forward pass (on a busy CPU, tens of ms)
-        action, length, last_step = self._action(obs), 0, None
-        self.pace.restart(time.monotonic())
+        new_episode = True
         while True:
+            if new_episode:
+                obs = self._begin_episode()
+                if obs is None:
+                    return
+                # the action for each observation is worked out as soon as it is seen, so at the period's tick it is
+                # sent at once: the robot's clock does not wait for a forward pass (on a busy CPU, tens of ms)
+                action, length, last_step = self._action(obs), 0, None
+                self.pace.restart(time.monotonic())
+                new_episode = False
             held = self._hold_if_needed()
             if held == "exit":
                 return
             if held == "resumed":  # a stop cut the episode: a new one begins
-                obs = self._begin_episode()
-                if obs is None:
-                    return
-                action, length, last_step = self._action(obs), 0, None
-                self.pace.restart(time.monotonic())
+                new_episode = True
                 continue
             delay = self.pace.tick - time.monotonic()
             if delay > 0:  # (woken early by a stop: the hold is looked at again, then the rest is waited)
                 self.wake.wait(delay)
                 continue
             if self.controls.demo_ended:  # the success key ended the demo: the next episode
-                obs = self._begin_episode()
-                if obs is None:
-                    return
-                action, length, last_step = self._action(obs), 0, None
-                self.pace.restart(time.monotonic())
+                new_episode = True
                 continue
             person = self._person_action()  # (a take-over: the person's action instead, on the same path)
             if person is None and self.controls.demo:  # a demo moves only by hand: it waits for the keys
@@ -439,11 +434,7 @@ class ActorLoop:
                 self.controls.evaluation_round, person is not None,
             ))  # fmt: skip
             if terminated or truncated or length >= cfg.episode_steps:
-                obs = self._begin_episode()
-                if obs is None:
-                    return
-                action, length, last_step = self._action(obs), 0, None
-                self.pace.restart(time.monotonic())
+                new_episode = True
                 continue
             self._read_learner()  # (a new policy is loaded here, between the steps)
             action = self._action(obs)
