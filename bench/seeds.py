@@ -56,6 +56,7 @@ TARGETS: dict[str, Target] = {
     "door": Target(0.9, 100_000, 50),
     "picker": Target(0.8, 100_000, 50),
     "bookshelf": Target(0.9, 15_000, 20),
+    "draping": Target(0.9, 15_000, 20),
 }
 CSV_COLUMNS = [
     "task", "algorithm", "seed", "target", "steps_to_target", "env_steps", "queries", "queries_yes", "minutes",

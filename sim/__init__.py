@@ -1,7 +1,7 @@
 """The paper's three simulated tasks as Gymnasium environments: pixels in, end-effector displacements out.
 
-`import sim` registers `VisualPusher-v0`, `VisualDoor-v0`, `VisualPicker-v0` and `VisualBookshelf-v0` (100-step
-episodes).
+`import sim` registers `VisualPusher-v0`, `VisualDoor-v0`, `VisualPicker-v0`, `VisualBookshelf-v0` and
+`VisualDraping-v0` (100-step episodes).
 This package imports no torch and no database code.
 """
 
@@ -16,6 +16,7 @@ TASKS: dict[str, str] = {
     "door": "VisualDoor-v0",
     "picker": "VisualPicker-v0",
     "bookshelf": "VisualBookshelf-v0",
+    "draping": "VisualDraping-v0",
 }
 
 _ENTRY_POINTS: dict[str, str] = {
@@ -23,6 +24,7 @@ _ENTRY_POINTS: dict[str, str] = {
     "VisualDoor-v0": "sim.door:VisualDoorEnv",
     "VisualPicker-v0": "sim.picker:VisualPickerEnv",
     "VisualBookshelf-v0": "sim.bookshelf:VisualBookshelfEnv",
+    "VisualDraping-v0": "sim.draping:VisualDrapingEnv",
 }
 
 MAX_EPISODE_STEPS = 100
@@ -36,6 +38,7 @@ PRESETS: dict[str, dict[str, int]] = {
     "VisualDoor-v0": {"query_every": 1000, "query_budget": 50},
     "VisualPicker-v0": {"query_every": 1000, "query_budget": 50},
     "VisualBookshelf-v0": {"query_every": 750, "query_budget": 20},
+    "VisualDraping-v0": {"query_every": 750, "query_budget": 20},
 }
 """Per task, the training-config fields (of PRESET_FIELDS) a run of it starts from (every other field: its
 default); how well each learns with them is in docs/results.md."""

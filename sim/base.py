@@ -107,6 +107,8 @@ class SawyerMocapEnv(gym.Env[np.ndarray, np.ndarray]):
         # truth are of the state the step ended in, exactly as a state snapshot of it renders later
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_camlight(self.model, self.data)
+        if self.model.nflex:  # (a cloth's vertices, from the bodies' positions)
+            mujoco.mj_flex(self.model, self.data)
         info = self.get_info()
         return self._observe(), float(info["success"]), False, False, info
 

@@ -23,6 +23,7 @@ from PIL import Image
 
 from sim import MAX_EPISODE_STEPS, TASKS
 from sim.bookshelf import VisualBookshelfEnv
+from sim.draping import VisualDrapingEnv
 from sim.picker import VisualPickerEnv
 from sim.pusher import VisualPusherEnv
 from sim.scripted import scripted_action
@@ -67,13 +68,16 @@ def _settle_action(env: gymnasium.Env, target: np.ndarray) -> np.ndarray:
     step = task_env.action_scale
     if isinstance(task_env, VisualPickerEnv):
         return np.append(np.clip((target - task_env.ball_pos) / step, -1.0, 1.0), 1.0)
+    if isinstance(task_env, VisualDrapingEnv):  # (its actions move the hand in y and z)
+        return np.clip((target - task_env.hand_pos)[1:] / step, -1.0, 1.0)
     return np.clip((target - task_env.hand_pos) / step, -1.0, 1.0)
 
 
 def _scripted_success(env: gymnasium.Env, rng: np.random.Generator) -> bool:
     """Run the scripted controller until it succeeds, then settle at a varied nearby pose; True if still a success.
 
-    Picker: the held ball moves to a random point within 1.5 cm (per axis) of the goal point. Door: the hook, still in
+    Picker: the held ball moves to a random point within 1.5 cm (per axis) of the goal point. Draping: the hand up to
+    1 cm nearer or farther and up to 2 cm higher. Door: the hook, still in
     the handle, moves up to 1.5 cm along the bar and 1 cm along the pull (the door follows a little).
     """
     for _ in range(MAX_EPISODE_STEPS):
@@ -87,6 +91,8 @@ def _scripted_success(env: gymnasium.Env, rng: np.random.Generator) -> bool:
     task_env = env.unwrapped
     if isinstance(task_env, VisualPickerEnv):
         target = task_env.goal_pos + rng.uniform(-0.015, 0.015, size=3)
+    elif isinstance(task_env, VisualDrapingEnv):  # the draped cloth's held edge, a little nearer, farther or higher
+        target = task_env.hand_pos + np.array([0.0, rng.uniform(-0.01, 0.01), rng.uniform(0.0, 0.02)])
     else:
         # The hook stays in the handle: it slides a little along the bar and in the pull direction.
         target = task_env.hand_pos + np.array([rng.uniform(-0.015, 0.015), rng.uniform(-0.01, 0.01), 0.0])

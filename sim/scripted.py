@@ -16,6 +16,7 @@ from sim import TASKS
 from sim.base import SawyerMocapEnv
 from sim.bookshelf import VisualBookshelfEnv
 from sim.door import VisualDoorEnv
+from sim.draping import VisualDrapingEnv
 from sim.picker import VisualPickerEnv
 from sim.pusher import VisualPusherEnv
 
@@ -114,11 +115,24 @@ def bookshelf_action(env: VisualBookshelfEnv) -> np.ndarray:
     return np.array([np.clip((slot - hand[0]) / step, -1.0, 1.0), height])
 
 
+DRAPE_WAYPOINTS = ((-0.08, 0.36), (0.0, 0.24), (0.06, 0.14), (0.075, 0.06))
+"""The draping hand's path (y, z): up and over the near edge, the cloth laid across the top, down the far side."""
+
+
+def draping_action(env: VisualDrapingEnv) -> np.ndarray:
+    """Toward the first waypoint still ahead (along y) of the hand: the cloth is laid over the box, not dragged."""
+    hand, step = env.hand_pos[1:], env.action_scale
+    ahead = [point for point in DRAPE_WAYPOINTS if point[0] > hand[0] + 0.005]
+    target = np.array(ahead[0] if ahead else DRAPE_WAYPOINTS[-1])
+    return np.clip((target - hand) / step, -1.0, 1.0)
+
+
 _CONTROLLERS: dict[type[SawyerMocapEnv], Callable[..., np.ndarray]] = {
     VisualPusherEnv: pusher_action,
     VisualDoorEnv: door_action,
     VisualPickerEnv: picker_action,
     VisualBookshelfEnv: bookshelf_action,
+    VisualDrapingEnv: draping_action,
 }
 
 

@@ -21,9 +21,14 @@ import sim
 from sim.door import VisualDoorEnv
 from sim.picker import VisualPickerEnv
 from sim.pusher import VisualPusherEnv
+from sim.scripted import DRAPE_WAYPOINTS, draping_action
 
 ENV_IDS = list(sim.TASKS.values())
-ACTION_DIMS = {"VisualPusher-v0": 2, "VisualDoor-v0": 3, "VisualPicker-v0": 4, "VisualBookshelf-v0": 2}
+ACTION_DIMS = {
+    "VisualPusher-v0": 2, "VisualDoor-v0": 3, "VisualPicker-v0": 4, "VisualBookshelf-v0": 2, "VisualDraping-v0": 2,
+}  # fmt: skip
+FIRST_ACTION_AXIS = {"VisualDraping-v0": 1}
+"""The hand's axis the first action dimension moves, where it is not x (draping: y, toward the box's far side)."""
 # Just inside / just outside a threshold.
 EPS = 1e-4
 
@@ -50,7 +55,7 @@ def changed_fraction(a: np.ndarray, b: np.ndarray, threshold: int = 30) -> float
 def test_import_registers_the_tasks() -> None:
     assert sim.TASKS == {
         "pusher": "VisualPusher-v0", "door": "VisualDoor-v0", "picker": "VisualPicker-v0",
-        "bookshelf": "VisualBookshelf-v0",
+        "bookshelf": "VisualBookshelf-v0", "draping": "VisualDraping-v0",
     }  # fmt: skip
     for env_id in ENV_IDS:
         assert gymnasium.spec(env_id).max_episode_steps == 100
@@ -228,8 +233,9 @@ def test_actions_move_the_hand_2_cm_per_unit_inside_the_workspace(env_id: str, m
         env.step(action)
     env.step(np.zeros_like(action))
     moved = task_env.hand_pos - start
-    assert moved[0] == pytest.approx(0.04, abs=0.004)
-    assert np.abs(moved[1:]).max() < 0.003
+    axis = FIRST_ACTION_AXIS.get(env_id, 0)
+    assert moved[axis] == pytest.approx(0.04, abs=0.004)
+    assert np.abs(np.delete(moved, axis)).max() < 0.003
     for _ in range(40):
         env.step(-np.ones_like(action))
     assert np.all(task_env.hand_pos >= np.array(task_env.hand_low) - 0.003)
@@ -340,3 +346,24 @@ def test_the_held_book_goes_down_into_either_empty_slot_and_nowhere_else(make_en
     assert reached[-0.08][0] == reached[0.08][0] == 1.0
     assert {reached[x][0] for x in (0.0, 0.02, -0.14)} == {0.0}
     assert min(reached[x][1] for x in (0.0, 0.02, -0.14)) >= 0.14  # (on top of the row: 14.4-16 cm)
+
+
+def test_the_cloth_laid_over_the_box_is_draped_and_the_straight_line_to_the_same_end_is_not(make_env) -> None:
+    """The scripted hand lifts the cloth, lays it over the near edge and draws it across: it lies on the top and
+    hangs down both sides, unfolded. The shortest way to the very same end point (what a reward on the end
+    effector's distance asks for: straight to above it, clear of the box, then down) drags it across the top, its
+    free edge left out on the table: no success."""
+    env = make_env("VisualDraping-v0").unwrapped
+    end = np.array(DRAPE_WAYPOINTS[-1])
+    for seed in range(3):
+        env.reset(seed=seed)
+        for _ in range(40):
+            _, _, _, _, laid = env.step(draping_action(env))
+        env.reset(seed=seed)
+        for target in (end + [0.0, 0.04], end):  # (straight to above the end, the gripper clearing the box; down)
+            for _ in range(25):
+                _, _, _, _, dragged = env.step(np.clip((target - env.hand_pos[1:]) / env.action_scale, -1.0, 1.0))
+        assert np.allclose(env.hand_pos[1:], end, atol=0.005)
+        assert laid["success"] == 1.0 and laid["covering"] >= env.covering_vertices and laid["fold"] <= 0.05
+        assert laid["near_hang"] == laid["far_hang"] == 1.0
+        assert dragged["success"] == 0.0 and dragged["near_hang"] == 0.0  # (its free edge out on the table)

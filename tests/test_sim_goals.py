@@ -30,6 +30,8 @@ def test_goal_examples_are_varied_successes_of_one_fixed_goal(task: str) -> None
     elif task == "bookshelf":  # either slot is a success: the examples show both
         slots = {example.info["slot"] for example in make_goal_examples(task, 8, seed=0, image_size=48)}
         assert slots == {0, 1}
+    elif task == "draping":  # the cloth on the top and down both sides
+        assert all(example.info["near_hang"] == example.info["far_hang"] == 1.0 for example in examples)
     else:
         goals = np.array([example.info["goal_pos"] for example in examples])
         assert np.array_equal(goals, np.repeat(goals[:1], len(goals), axis=0))
@@ -63,6 +65,10 @@ def test_scripted_controller_solves_every_episode(task: str) -> None:
     assert success_rate(task, "scripted", episodes=20, seed=0) == 1.0
 
 
+RANDOM_EPISODES = {"draping": 25}
+"""Fewer random episodes where a step costs more (the cloth's contacts): none of them may succeed."""
+
+
 @pytest.mark.parametrize("task", list(sim.TASKS))
 def test_uniformly_random_actions_succeed_in_at_most_2_percent_of_episodes(task: str) -> None:
-    assert success_rate(task, "random", episodes=100, seed=0) <= 0.02
+    assert success_rate(task, "random", episodes=RANDOM_EPISODES.get(task, 100), seed=0) <= 0.02
