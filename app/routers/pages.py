@@ -36,7 +36,7 @@ router = APIRouter(include_in_schema=False)
 
 FALLBACK_TASKS: dict[str, str] = {
     "pusher": "VisualPusher-v0", "door": "VisualDoor-v0", "picker": "VisualPicker-v0",
-    "bookshelf": "VisualBookshelf-v0",
+    "bookshelf": "VisualBookshelf-v0", "draping": "VisualDraping-v0",
 }  # fmt: skip
 OptionalId = Annotated[int | None, Query(ge=1, le=INT32_MAX)]
 # How many goal photos to give: the goal-set page warns below FEWEST (the README asks for as many), more help (the
