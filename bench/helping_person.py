@@ -6,6 +6,10 @@ period (POST /api/runs/ID/robot/drive), and a hand-back once the mug is on the c
 In each episode it lets the policy act for a few steps first (0 to LATEST_START_STEPS, drawn), so the states it
 takes over from vary; whether it helps at all is drawn per episode with `help_chance(episode, asked)`: `asked`
 when the run asks for help (GET /api/runs/ID/robot: `asks_for_help`, no asked state a success lately).
+
+With `demos`, it shows the way first instead and never takes over later: it presses Record demos (POST
+/api/runs/ID/robot/demos) as soon as the robot's actor has reported, drives each demo episode from its first step,
+and presses the success key (POST /api/runs/ID/robot/success) once the mug is on the coaster, which ends it.
 """
 
 import contextlib
@@ -75,23 +79,35 @@ def post(url: str, body: dict | None = None) -> int:
 class HelpingPerson:
     """The person's hands for one run: `run(done)` until `done` is set."""
 
-    def __init__(self, url: str, run_id: int, seen: Path, *, seed: int, control_hz: float) -> None:
+    def __init__(self, url: str, run_id: int, seen: Path, *, seed: int, control_hz: float, demos: int = 0) -> None:
         self.url, self.run_id, self.seen = url, run_id, seen
         self.rng = np.random.default_rng([seed, 57])
         self.half_period = 0.5 / control_hz
+        self.demos = demos
+        self.demos_from: int | None = None  # the first demo episode, once Record demos was accepted
         self.episodes_helped = 0
         self.actions_sent = 0
+
+    def _helps_in(self, episode: int) -> tuple[bool, int]:
+        """Whether the person drives in `episode` (a new one), and after how many of the policy's steps."""
+        if self.demos:
+            demo = self.demos_from is not None and self.demos_from <= episode < self.demos_from + self.demos
+            return demo, 0
+        asked = asks_for_help(self.url, self.run_id)
+        return bool(self.rng.random() < help_chance(episode, asked)), int(self.rng.integers(0, LATEST_START_STEPS + 1))
 
     def run(self, done: threading.Event) -> None:
         episode, helping, start_after, driving = 0, False, 0, False
         drive = f"{self.url}/api/runs/{self.run_id}/robot/drive"
         while not done.is_set():
             state = seen_state(self.seen)
+            if self.demos and self.demos_from is None and state is not None:  # (409 until the actor has reported)
+                with contextlib.suppress(OSError):
+                    if post(f"{self.url}/api/runs/{self.run_id}/robot/demos", {"episodes": self.demos}) == 202:
+                        self.demos_from = state["episode"] + 1  # (the actor takes them as its next episodes begin)
             if state is not None and state["episode"] != episode:  # a new episode: help in it or not
                 episode = state["episode"]
-                asked = asks_for_help(self.url, self.run_id)
-                helping = bool(self.rng.random() < help_chance(episode, asked))
-                start_after = int(self.rng.integers(0, LATEST_START_STEPS + 1))
+                helping, start_after = self._helps_in(episode)
                 self.episodes_helped += helping
             wanted = helping and state is not None and state["step"] >= start_after and not state["success"]
             if wanted:
@@ -105,6 +121,9 @@ class HelpingPerson:
                 with contextlib.suppress(OSError):
                     post(f"{self.url}/api/runs/{self.run_id}/robot/hand-back")
                 driving = False
-            if state is not None and state["success"]:
+            if state is not None and state["success"] and helping:
                 helping = False  # (the mug is on the coaster: the policy has the rest of the episode)
+                if self.demos:  # the success key: the demo's last frames are positives, and the demo ends
+                    with contextlib.suppress(OSError):
+                        post(f"{self.url}/api/runs/{self.run_id}/robot/success")
             done.wait(self.half_period)

@@ -26,8 +26,9 @@ comes before every episode: a resetter thread presses Ready through POST /api/ru
 
 `--with-help interventions`: an automated person also takes the arm over by hand, as the run page lets a person do
 (bench/helping_person.py: the scripted pusher expert, often in the early episodes and less and less after, through
-POST /api/runs/ID/robot/drive); the stand-in then tells it where the mug and hand are (bench/seen_standin.py). The
-row's `help` column says which.
+POST /api/runs/ID/robot/drive); the stand-in then tells it where the mug and hand are (bench/seen_standin.py).
+`--with-help demos`: the same person records DEMO_EPISODES demos first (Record demos, each driven from its first
+step and ended with the success key) and never takes over after. The row's `help` column says which.
 
 Each seed writes <out>/seed<N>/figures.json; every seed's row goes to --csv (docs/results/robot.csv), replacing
 an earlier row of the same seed and preset, and its figures (its evaluations: the curve of bench/results.py's plot)
@@ -63,7 +64,9 @@ from contract.images import prepare_upload  # noqa: E402
 from contract.learner_pace import PACE_METRIC  # noqa: E402
 from contract.store import Store  # noqa: E402
 
-HELP_KINDS = ("none", "interventions")
+HELP_KINDS = ("none", "interventions", "demos")
+DEMO_EPISODES = 5
+"""Episodes the automated person drives by hand before the policy acts (`--with-help demos`)."""
 """What a person's hands do for a seed: nothing, or take over now and then (bench/helping_person.py)."""
 
 STANDIN = "robot.standin:PusherStandIn-v0"
@@ -181,7 +184,7 @@ def standin_id(args: argparse.Namespace) -> str:
     """The stand-in's env id: one that shows the automated person the scene when it helps."""
     from bench.seen_standin import ENV_ID  # noqa: PLC0415
 
-    return ENV_ID if args.with_help == "interventions" else STANDIN
+    return STANDIN if args.with_help == "none" else ENV_ID
 
 
 def seed_config(args: argparse.Namespace, seed: int) -> tuple[str, TrainConfig]:
@@ -251,7 +254,7 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
     env = {**os.environ, "RAQ_DATA_DIR": str(data_dir), "RAQ_PORT": str(port), "PYTHONUNBUFFERED": "1"}
     env.setdefault("MUJOCO_GL", "egl")
     seen = out / "seen.json"
-    if args.with_help == "interventions":
+    if args.with_help != "none":
         from bench.seen_standin import SEEN_VARIABLE  # noqa: PLC0415
 
         seen.unlink(missing_ok=True)
@@ -293,10 +296,11 @@ def run_seed(args: argparse.Namespace, seed: int, out: Path) -> dict:
         learner = subprocess.Popen(raq + ["learn", "--once"], env=env, stdout=logs["learn"], stderr=subprocess.STDOUT)
         processes.append(learner)
         threading.Thread(target=resetter, args=(url, done, presses), daemon=True).start()
-        if args.with_help == "interventions":
+        if args.with_help != "none":
             from bench.helping_person import HelpingPerson  # noqa: PLC0415
 
-            person = HelpingPerson(url, run.id, seen, seed=seed, control_hz=config.control_hz or 5.0)
+            demos = DEMO_EPISODES if args.with_help == "demos" else 0
+            person = HelpingPerson(url, run.id, seen, seed=seed, control_hz=config.control_hz or 5.0, demos=demos)
             threading.Thread(target=person.run, args=(done,), daemon=True).start()
         if args.probes:
             probe(args, store, url, run.id, learner, figures)

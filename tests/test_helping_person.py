@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.helping_person import ASKED, OFTEN, TAPER_EPISODES, expert_action, help_chance
+from bench.helping_person import ASKED, OFTEN, TAPER_EPISODES, HelpingPerson, expert_action, help_chance
 from bench.seen_standin import SEEN_VARIABLE, SeenStandIn, seen_state
 
 
@@ -36,3 +36,12 @@ def test_help_comes_often_early_then_tapers_to_none() -> None:
     assert chances[0] == OFTEN and chances[TAPER_EPISODES:] == [0.0] * len(chances[TAPER_EPISODES:])
     assert np.all(np.diff(chances) <= 0)
     assert help_chance(TAPER_EPISODES + 10, asked=True) == ASKED  # late, but the run asks for help
+
+
+def test_with_demos_the_person_drives_each_demo_from_its_first_step_and_never_takes_over_after() -> None:
+    person = HelpingPerson("http://127.0.0.1:9", 1, Path("seen.json"), seed=0, control_hz=5.0, demos=5)
+    assert person._helps_in(1) == (False, 0)  # (Record demos not accepted yet)
+    person.demos_from = 3
+    assert [person._helps_in(episode) for episode in range(1, 11)] == [(False, 0)] * 2 + [(True, 0)] * 5 + [
+        (False, 0)
+    ] * 3
