@@ -8,8 +8,9 @@ takes over from vary; whether it helps at all is drawn per episode with `help_ch
 when the run asks for help (GET /api/runs/ID/robot: `asks_for_help`, no asked state a success lately).
 
 With `demos`, it shows the way first instead and never takes over later: it presses Record demos (POST
-/api/runs/ID/robot/demos) as soon as the robot's actor has reported, drives each demo episode from its first step,
-and presses the success key (POST /api/runs/ID/robot/success) once the mug is on the coaster, which ends it.
+/api/runs/ID/robot/demos) as soon as the robot's actor has reported, drives every episode from its first step, and
+presses the success key (POST /api/runs/ID/robot/success) once the mug is on the coaster, which ends a demo, until
+it has pressed it `demos` times (an episode the policy began before the demos were taken is driven too).
 """
 
 import contextlib
@@ -84,15 +85,15 @@ class HelpingPerson:
         self.rng = np.random.default_rng([seed, 57])
         self.half_period = 0.5 / control_hz
         self.demos = demos
-        self.demos_from: int | None = None  # the first demo episode, once Record demos was accepted
+        self.demos_asked = False  # Record demos accepted
+        self.demos_marked = 0  # success keys pressed in demo episodes
         self.episodes_helped = 0
         self.actions_sent = 0
 
     def _helps_in(self, episode: int) -> tuple[bool, int]:
         """Whether the person drives in `episode` (a new one), and after how many of the policy's steps."""
-        if self.demos:
-            demo = self.demos_from is not None and self.demos_from <= episode < self.demos_from + self.demos
-            return demo, 0
+        if self.demos:  # (from the first episode on, so that no demo episode waits for hands that never come)
+            return self.demos_marked < self.demos, 0
         asked = asks_for_help(self.url, self.run_id)
         return bool(self.rng.random() < help_chance(episode, asked)), int(self.rng.integers(0, LATEST_START_STEPS + 1))
 
@@ -101,10 +102,11 @@ class HelpingPerson:
         drive = f"{self.url}/api/runs/{self.run_id}/robot/drive"
         while not done.is_set():
             state = seen_state(self.seen)
-            if self.demos and self.demos_from is None and state is not None:  # (409 until the actor has reported)
+            if self.demos and not self.demos_asked and state is not None:  # (409 until the actor has reported)
                 with contextlib.suppress(OSError):
-                    if post(f"{self.url}/api/runs/{self.run_id}/robot/demos", {"episodes": self.demos}) == 202:
-                        self.demos_from = state["episode"] + 1  # (the actor takes them as its next episodes begin)
+                    self.demos_asked = (
+                        post(f"{self.url}/api/runs/{self.run_id}/robot/demos", {"episodes": self.demos}) == 202
+                    )
             if state is not None and state["episode"] != episode:  # a new episode: help in it or not
                 episode = state["episode"]
                 helping, start_after = self._helps_in(episode)
@@ -125,5 +127,5 @@ class HelpingPerson:
                 helping = False  # (the mug is on the coaster: the policy has the rest of the episode)
                 if self.demos:  # the success key: the demo's last frames are positives, and the demo ends
                     with contextlib.suppress(OSError):
-                        post(f"{self.url}/api/runs/{self.run_id}/robot/success")
+                        self.demos_marked += post(f"{self.url}/api/runs/{self.run_id}/robot/success") == 202
             done.wait(self.half_period)

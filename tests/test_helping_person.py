@@ -38,10 +38,8 @@ def test_help_comes_often_early_then_tapers_to_none() -> None:
     assert help_chance(TAPER_EPISODES + 10, asked=True) == ASKED  # late, but the run asks for help
 
 
-def test_with_demos_the_person_drives_each_demo_from_its_first_step_and_never_takes_over_after() -> None:
+def test_with_demos_the_person_drives_every_episode_from_its_first_step_until_the_demos_are_done() -> None:
     person = HelpingPerson("http://127.0.0.1:9", 1, Path("seen.json"), seed=0, control_hz=5.0, demos=5)
-    assert person._helps_in(1) == (False, 0)  # (Record demos not accepted yet)
-    person.demos_from = 3
-    assert [person._helps_in(episode) for episode in range(1, 11)] == [(False, 0)] * 2 + [(True, 0)] * 5 + [
-        (False, 0)
-    ] * 3
+    assert [person._helps_in(episode) for episode in range(1, 4)] == [(True, 0)] * 3
+    person.demos_marked = 5  # (five success keys pressed)
+    assert [person._helps_in(episode) for episode in range(4, 8)] == [(False, 0)] * 4
