@@ -8,9 +8,9 @@ takes over from vary; whether it helps at all is drawn per episode with `help_ch
 when the run asks for help (GET /api/runs/ID/robot: `asks_for_help`, no asked state a success lately).
 
 With `demos`, it shows the way first instead and never takes over later: it presses Record demos (POST
-/api/runs/ID/robot/demos) as soon as the robot's actor has reported, drives every episode from its first step, and
-presses the success key (POST /api/runs/ID/robot/success) once the mug is on the coaster, which ends a demo, until
-it has pressed it `demos` times (an episode the policy began before the demos were taken is driven too).
+/api/runs/ID/robot/demos) as soon as the robot's actor has reported, drives each demo episode from its first step
+(whenever the robot says it waits for the person's keys) and presses the success key (POST
+/api/runs/ID/robot/success) once the mug is on the coaster, which ends it.
 """
 
 import contextlib
@@ -66,6 +66,17 @@ def asks_for_help(url: str, run_id: int) -> bool:
         return False
 
 
+def demo_state(url: str, run_id: int) -> tuple[bool, int]:
+    """Whether the robot waits for a person's keys now (a demo episode), and the demo episodes not begun yet;
+    (False, 1) when the server cannot say."""
+    try:
+        with urllib.request.urlopen(f"{url}/api/runs/{run_id}/robot", timeout=5) as response:
+            status = json.loads(response.read())
+    except (OSError, ValueError):
+        return False, 1
+    return str(status.get("actor_state") or "").startswith("demo"), int(status.get("demo_pending") or 0)
+
+
 def post(url: str, body: dict | None = None) -> int:
     """POST `body` as JSON; the status code."""
     data = json.dumps(body or {}).encode()
@@ -86,14 +97,14 @@ class HelpingPerson:
         self.half_period = 0.5 / control_hz
         self.demos = demos
         self.demos_asked = False  # Record demos accepted
-        self.demos_marked = 0  # success keys pressed in demo episodes
+        self.demos_over = False  # each demo episode begun and ended
         self.episodes_helped = 0
         self.actions_sent = 0
 
     def _helps_in(self, episode: int) -> tuple[bool, int]:
         """Whether the person drives in `episode` (a new one), and after how many of the policy's steps."""
-        if self.demos:  # (from the first episode on, so that no demo episode waits for hands that never come)
-            return self.demos_marked < self.demos, 0
+        if self.demos:  # (a demo episode is driven once the robot waits for the keys: see `run`)
+            return False, 0
         asked = asks_for_help(self.url, self.run_id)
         return bool(self.rng.random() < help_chance(episode, asked)), int(self.rng.integers(0, LATEST_START_STEPS + 1))
 
@@ -111,6 +122,11 @@ class HelpingPerson:
                 episode = state["episode"]
                 helping, start_after = self._helps_in(episode)
                 self.episodes_helped += helping
+            if self.demos_asked and not self.demos_over and not helping and state is not None:
+                waiting, pending = demo_state(self.url, self.run_id)
+                helping = waiting and not state["success"]  # (a demo episode: driven from its first step)
+                self.episodes_helped += helping
+                self.demos_over = not waiting and pending == 0
             wanted = helping and state is not None and state["step"] >= start_after and not state["success"]
             if wanted:
                 try:
@@ -127,5 +143,5 @@ class HelpingPerson:
                 helping = False  # (the mug is on the coaster: the policy has the rest of the episode)
                 if self.demos:  # the success key: the demo's last frames are positives, and the demo ends
                     with contextlib.suppress(OSError):
-                        self.demos_marked += post(f"{self.url}/api/runs/{self.run_id}/robot/success") == 202
+                        post(f"{self.url}/api/runs/{self.run_id}/robot/success")
             done.wait(self.half_period)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.helping_person import ASKED, OFTEN, TAPER_EPISODES, HelpingPerson, expert_action, help_chance
+from bench.helping_person import ASKED, OFTEN, TAPER_EPISODES, expert_action, help_chance
 from bench.seen_standin import SEEN_VARIABLE, SeenStandIn, seen_state
 
 
@@ -36,10 +36,3 @@ def test_help_comes_often_early_then_tapers_to_none() -> None:
     assert chances[0] == OFTEN and chances[TAPER_EPISODES:] == [0.0] * len(chances[TAPER_EPISODES:])
     assert np.all(np.diff(chances) <= 0)
     assert help_chance(TAPER_EPISODES + 10, asked=True) == ASKED  # late, but the run asks for help
-
-
-def test_with_demos_the_person_drives_every_episode_from_its_first_step_until_the_demos_are_done() -> None:
-    person = HelpingPerson("http://127.0.0.1:9", 1, Path("seen.json"), seed=0, control_hz=5.0, demos=5)
-    assert [person._helps_in(episode) for episode in range(1, 4)] == [(True, 0)] * 3
-    person.demos_marked = 5  # (five success keys pressed)
-    assert [person._helps_in(episode) for episode in range(4, 8)] == [(False, 0)] * 4
