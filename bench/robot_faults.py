@@ -25,7 +25,8 @@ processes of a killed learner still alive STRAY_AFTER_SECONDS later, and the arm
 moves made by others: a move by a process that never drove the arm (a server), or an action by a driver after a
 later driver's first; the processes other than a driver that opened the robot's camera; the moves after a Stop
 nobody resumed (fault 5); and the moves or holds by a process without the hold (the refused robot process of fault
-6, the paused one of fault 7 once continued). Writes <out>/figures.json.
+6, the paused one of fault 7 once continued). Writes <out>/figures.json. Every process starts in a process group
+of its own, and a SIGSTOPped one is checked to stay stopped for the whole pause (else the bench ends with an error).
 """
 
 import argparse
