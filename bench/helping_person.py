@@ -66,15 +66,13 @@ def asks_for_help(url: str, run_id: int) -> bool:
         return False
 
 
-def demo_state(url: str, run_id: int) -> tuple[bool, int]:
-    """Whether the robot waits for a person's keys now (a demo episode), and the demo episodes not begun yet;
-    (False, 1) when the server cannot say."""
+def waits_for_keys(url: str, run_id: int) -> bool:
+    """Whether the robot waits for a person's keys now (a demo episode; False when the server cannot say)."""
     try:
         with urllib.request.urlopen(f"{url}/api/runs/{run_id}/robot", timeout=5) as response:
-            status = json.loads(response.read())
+            return str(json.loads(response.read()).get("actor_state") or "").startswith("demo")
     except (OSError, ValueError):
-        return False, 1
-    return str(status.get("actor_state") or "").startswith("demo"), int(status.get("demo_pending") or 0)
+        return False
 
 
 def post(url: str, body: dict | None = None) -> int:
@@ -97,7 +95,7 @@ class HelpingPerson:
         self.half_period = 0.5 / control_hz
         self.demos = demos
         self.demos_asked = False  # Record demos accepted
-        self.demos_over = False  # each demo episode begun and ended
+        self.demos_driven = 0  # demo episodes driven (found waiting for the keys)
         self.episodes_helped = 0
         self.actions_sent = 0
 
@@ -122,11 +120,10 @@ class HelpingPerson:
                 episode = state["episode"]
                 helping, start_after = self._helps_in(episode)
                 self.episodes_helped += helping
-            if self.demos_asked and not self.demos_over and not helping and state is not None:
-                waiting, pending = demo_state(self.url, self.run_id)
-                helping = waiting and not state["success"]  # (a demo episode: driven from its first step)
+            if self.demos_asked and self.demos_driven < self.demos and not helping and state is not None:
+                helping = waits_for_keys(self.url, self.run_id) and not state["success"]  # (a demo: from its start)
                 self.episodes_helped += helping
-                self.demos_over = not waiting and pending == 0
+                self.demos_driven += helping
             wanted = helping and state is not None and state["step"] >= start_after and not state["success"]
             if wanted:
                 try:
