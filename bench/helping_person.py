@@ -57,22 +57,23 @@ def expert_action(state: dict) -> np.ndarray:
     return np.asarray(pusher_action(scene), dtype=float)  # type: ignore[arg-type]
 
 
-def asks_for_help(url: str, run_id: int) -> bool:
-    """Whether the run asks for a person's help now (False when the server cannot say)."""
+def robot_status(url: str, run_id: int) -> dict:
+    """The run's robot as the run page reads it (GET /api/runs/ID/robot); {} when the server cannot say."""
     try:
         with urllib.request.urlopen(f"{url}/api/runs/{run_id}/robot", timeout=5) as response:
-            return bool(json.loads(response.read()).get("asks_for_help"))
+            return json.loads(response.read())
     except (OSError, ValueError):
-        return False
+        return {}
+
+
+def asks_for_help(url: str, run_id: int) -> bool:
+    """Whether the run asks for a person's help now (False when the server cannot say)."""
+    return bool(robot_status(url, run_id).get("asks_for_help"))
 
 
 def waits_for_keys(url: str, run_id: int) -> bool:
     """Whether the robot waits for a person's keys now (a demo episode; False when the server cannot say)."""
-    try:
-        with urllib.request.urlopen(f"{url}/api/runs/{run_id}/robot", timeout=5) as response:
-            return str(json.loads(response.read()).get("actor_state") or "").startswith("demo")
-    except (OSError, ValueError):
-        return False
+    return str(robot_status(url, run_id).get("actor_state") or "").startswith("demo")
 
 
 def post(url: str, body: dict | None = None) -> int:

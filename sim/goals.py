@@ -2,7 +2,7 @@
 
 Pusher: the scene is put straight into a success state (mug on the coaster with a little noise, hand at a varied
 place behind it). Bookshelf: the held book is put into either empty slot, at a varied depth and offset, so the
-examples show both slots. Door and picker: the scripted controller runs from a seeded reset until it succeeds,
+examples show both slots. Door, picker and draping: the scripted controller runs from a seeded reset until it succeeds,
 settles at a varied nearby pose (hook still in the handle; ball held at a point near the goal), and the final frame
 is taken. Every example is checked to be a success. The goal itself (coaster, 45 degrees, point above the table,
 the two slots) is fixed in the model and never modified, so it is identical across examples.
