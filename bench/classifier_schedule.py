@@ -62,7 +62,7 @@ def train(
             since = np.arange(asked, asked + config.query_every)
             best = since[int(np.argmax(model.logits(replay.frames[replay.next_slot[since]])))]
             image = replay.frames[replay.next_slot[best]]
-            (model.add_positive if replay.success[best] > 0 else model.add_negative)(image)
+            (model.add_positive if replay.env_reward[best] > 0 else model.add_negative)(image)
             asked += config.query_every
         answered = no_answer_count(config) if len(model.answered_negatives) else 0
         for _ in range(config.classifier_steps):
@@ -111,7 +111,7 @@ def main() -> int:
     landscapes: list[str] = []
     print(
         f"{run_config.env_id}, checkpoint at step {state['step']}: {epochs} epochs of its replay ({len(replay)} "
-        f"transitions, {np.nanmean(replay.success[: len(replay)]):.1%} of them successes), {len(positives)} "
+        f"transitions, {np.nanmean(replay.env_reward[: len(replay)]):.1%} of them successes), {len(positives)} "
         f"positives; the run used {run_config.classifier_steps} steps at lr {run_config.classifier_lr:g}; "
         f"{args.episodes} scripted and random episodes ({scripted['success'].mean():.0%} / "
         f"{random_play['success'].mean():.0%} success states)"

@@ -89,7 +89,8 @@ def load_run(checkpoint: Path) -> tuple[dict[str, Any], TrainConfig, SACAgent]:
 def replay_summary(model: RewardModel, replay: dict[str, Any], block: int = 5000) -> list[str]:
     """What the run has seen, as lines to print: per `block` transitions of its replay (in the order collected),
     the share that are successes and f_psi's maximum and 99th percentile on their observations s'."""
-    frames, next_slot, success = replay["frames"].numpy(), replay["next_slot"].numpy(), replay["success"].numpy()
+    frames, next_slot = replay["frames"].numpy(), replay["next_slot"].numpy()
+    success = replay.get("env_reward", replay.get("success")).numpy()  # (a classifier run's: success(s'))
     logits = model.logits(frames[next_slot])
     lines = [f"replay: {len(next_slot)} transitions; per {block:,}: successes, f_psi max and 99th percentile"]
     for first in range(0, len(next_slot), block):

@@ -5,9 +5,10 @@ name. This module imports neither torch nor the store, so the web app can read i
 """
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 Negatives = Literal["replay", "pool"]
+EnvReward = Literal["success", "hand_distance"]
 
 
 @dataclass(frozen=True)
@@ -17,7 +18,7 @@ class AlgorithmSpec:
     label: str
     """How the pages name it."""
     classifier: bool
-    """The reward is a classifier f_psi learned from goal examples (False: the env's success flag, `sparse`)."""
+    """The reward is a classifier f_psi learned from goal examples (False: the env's own figure, `env_reward`)."""
     airl: bool = False
     """f_psi is trained as VICE's AIRL discriminator sigmoid(f_psi(s) - log pi(a|s)), else plain cross-entropy."""
     queries: bool = False
@@ -26,6 +27,9 @@ class AlgorithmSpec:
     """replay: uniform samples of the policy's replay; pool: first-epoch observations plus the 'no' answers."""
     train_once: bool = False
     """f_psi is trained once, after the first epoch, then frozen (the naive classifier)."""
+    env_reward: EnvReward = "success"
+    """What the replay keeps of each s' from the env's info, and a method without a classifier is rewarded with:
+    the success flag, or minus `hand_distance` (the end effector's distance to where it is in a success)."""
 
     @property
     def needs_goals(self) -> bool:
@@ -33,9 +37,16 @@ class AlgorithmSpec:
         return self.classifier
 
     @property
-    def needs_success(self) -> bool:
-        """The env must report info['success'] (it is the reward)."""
+    def needs_env_reward(self) -> bool:
+        """The env must report info[env_reward] (it is the reward)."""
         return not self.classifier
+
+    def env_reward_of(self, info: dict[str, Any]) -> float | None:
+        """The env's figure for s' that this method keeps, from the step's `info`; None when it reports none."""
+        value = info.get(self.env_reward) if isinstance(info, dict) else None
+        if value is None:
+            return None
+        return float(bool(value)) if self.env_reward == "success" else -float(value)
 
 
 ALGORITHM_SPECS: dict[str, AlgorithmSpec] = {
@@ -50,6 +61,11 @@ ALGORITHM_SPECS: dict[str, AlgorithmSpec] = {
         "Naive classifier: trained once on goal photos", classifier=True, negatives="pool", train_once=True
     ),
     "sparse": AlgorithmSpec("Sparse: the simulator's true success reward (no goal photos)", classifier=False),
+    "hand_distance": AlgorithmSpec(
+        "Hand distance: minus the end effector's distance to where it is in a success (a hand-made reward, for "
+        "envs that report info['hand_distance'])",
+        classifier=False, env_reward="hand_distance",
+    ),
 }
 """Every reward method, the recommended one first."""
 

@@ -308,7 +308,8 @@ class MethodConfig(SACConfig, NetworkConfig, ClassifierConfig, QueryConfig):
     """What the method is: the reward method of ALGORITHM_SPECS and its SAC, networks, classifier and queries."""
 
     algorithm: str = bounded("vice_raq", check=_algorithm_error)
-    """Reward method, one of contract.algorithms.ALGORITHM_SPECS: vice_raq, vice, raq, naive_classifier, sparse."""
+    """Reward method, one of contract.algorithms.ALGORITHM_SPECS: vice_raq, vice, raq, naive_classifier, sparse,
+    hand_distance."""
 
 
 class PartOf(Generic[Part]):

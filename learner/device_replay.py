@@ -31,7 +31,7 @@ class DeviceReplay:
         self.next_slot = torch.zeros(replay.capacity, dtype=torch.int64, device=device)
         self.actions = torch.zeros(replay.actions.shape, dtype=torch.float32, device=device)
         self.not_done = torch.zeros(replay.capacity, dtype=torch.float32, device=device)
-        self.success = torch.zeros(replay.capacity, dtype=torch.float32, device=device)
+        self.env_reward = torch.zeros(replay.capacity, dtype=torch.float32, device=device)
         self.size = torch.zeros((), dtype=torch.float32, device=device)
         """len(host) as a device scalar: samples read it at replay time, so a captured sample sees the buffer grow."""
         self.last_index = torch.zeros((), dtype=torch.int64, device=device)
@@ -56,8 +56,8 @@ class DeviceReplay:
             device_index = self._to_device(index)
             for name in ("obs_slot", "next_slot", "actions", "not_done"):
                 getattr(self, name)[device_index] = self._to_device(getattr(host, name)[index])
-            # sparse rewards read success(s'); a transition without it (env without info["success"]) reads 0
-            self.success[device_index] = self._to_device(np.nan_to_num(host.success[index], nan=0.0))
+            # the env's rewards read r_env(s'); a transition without it (an env that reports none) reads 0
+            self.env_reward[device_index] = self._to_device(np.nan_to_num(host.env_reward[index], nan=0.0))
             person = host.person_indices()
             if len(person):
                 self.person_index[: len(person)] = self._to_device(person)
@@ -91,7 +91,7 @@ class DeviceReplay:
 
     def sample(self, count: int, pad: int = 0, person_share: float = 0.0) -> dict[str, torch.Tensor]:
         """A SAC batch: indices, shifted uint8 obs and next_obs, the un-shifted next_obs (what f_psi rewards, as
-        the host path's reward cache does), action, not_done, success. As the host's: `person_share` of it from the
+        the host path's reward cache does), action, not_done, env_reward. As the host's: `person_share` of it from the
         transitions a person drove, once there are any (decided on the device, so a captured sample sees them)."""
         indices = self.sample_indices(count)
         person = round(person_share * count)
@@ -107,7 +107,7 @@ class DeviceReplay:
             "next_obs_unshifted": self.frames[next_slots],
             "action": self.actions[indices],
             "not_done": self.not_done[indices],
-            "success": self.success[indices],
+            "env_reward": self.env_reward[indices],
         }
 
     def sample_next_frames(self, count: int) -> torch.Tensor:

@@ -1,6 +1,6 @@
 """Replay buffer of image transitions that stores each frame once, plus DrQ's random shift done as a gather.
 
-A transition (s, a, s', d, success(s')) points at two frame slots; s' of one step is s of the next, so a frame
+A transition (s, a, s', d, r_env(s')) points at two frame slots; s' of one step is s of the next, so a frame
 is stored once (about 1 + 1/T frames per transition for episodes of length T). Each transition adds at most
 two frames (its s' and, after a reset, its s), and with `envs` envs in lockstep an env's s was stored at most
 2 (envs - 1) frames before its transition, so a frame ring of 2 capacity + 2 envs never overwrites a frame a
@@ -73,7 +73,8 @@ class ReplayBuffer:
         self.next_slot = np.zeros(capacity, dtype=np.int64)
         self.actions = np.zeros((capacity, action_dim), dtype=np.float32)
         self.not_done = np.zeros(capacity, dtype=np.float32)
-        self.success = np.full(capacity, np.nan, dtype=np.float32)
+        # the env's figure for s' (the method's `env_reward`: success(s'), or minus the hand's distance; nan: none)
+        self.env_reward = np.full(capacity, np.nan, dtype=np.float32)
         self.person = np.zeros(capacity, dtype=bool)  # a person drove the step by hand (a take-over)
         self._person_indices: tuple[int, np.ndarray] = (0, np.zeros(0, dtype=np.int64))  # (added, indices) cache
         # f_psi(s') per transition and the classifier version that computed it (-1: none)
@@ -93,7 +94,7 @@ class ReplayBuffer:
         return slot
 
     def add(
-        self, obs_slot: int, action: np.ndarray, next_slot: int, terminated: bool, success: float | None,
+        self, obs_slot: int, action: np.ndarray, next_slot: int, terminated: bool, env_reward: float | None,
         person: bool = False,
     ) -> int:  # fmt: skip
         """Store a transition between two stored frames (`person`: a person drove it by hand); returns its index."""
@@ -102,7 +103,7 @@ class ReplayBuffer:
         self.next_slot[index] = next_slot
         self.actions[index] = action
         self.not_done[index] = 0.0 if terminated else 1.0
-        self.success[index] = np.nan if success is None else success
+        self.env_reward[index] = np.nan if env_reward is None else env_reward
         self.person[index] = person
         self.reward_version[index] = -1
         self.added += 1
@@ -154,7 +155,7 @@ class ReplayBuffer:
             "next_slot": torch.from_numpy(self.next_slot[:used]),
             "actions": torch.from_numpy(self.actions[:used]),
             "not_done": torch.from_numpy(self.not_done[:used]),
-            "success": torch.from_numpy(self.success[:used]),
+            "env_reward": torch.from_numpy(self.env_reward[:used]),
             "person": torch.from_numpy(self.person[:used]),
             "frames_added": self.frames_added,
             "added": self.added,
@@ -171,8 +172,9 @@ class ReplayBuffer:
         frames = state["frames"].numpy()
         self.frames[: len(frames)] = frames
         used = len(state["obs_slot"])
-        for name in ("obs_slot", "next_slot", "actions", "not_done", "success"):
+        for name in ("obs_slot", "next_slot", "actions", "not_done"):
             getattr(self, name)[:used] = state[name].numpy()
+        self.env_reward[:used] = state.get("env_reward", state.get("success")).numpy()  # (before: only success)
         if "person" in state:  # (checkpoints written before take-overs have none)
             self.person[:used] = state["person"].numpy()
         self.frames_added, self.added = int(state["frames_added"]), int(state["added"])

@@ -2,7 +2,8 @@
 
 `import learner.testing_envs` registers "DotReach-v0"; make it as "learner.testing_envs:DotReach-v0".
 The observation is an RGB image (obs_size px; 24 by default); render() draws the same state at render_size.
-info["success"] is True when the dot is within `radius` of the target (unless report_success=False).
+info["success"] is True when the dot is within `radius` of the target (unless report_success=False);
+info["hand_distance"] is the dot's distance to the target (the dot is the hand).
 """
 
 import importlib
@@ -39,7 +40,7 @@ class DotReach(gym.Env[np.ndarray, np.ndarray]):
 
     def _info(self) -> dict[str, Any]:
         distance = float(np.linalg.norm(self.position - self.target))
-        info: dict[str, Any] = {"distance": distance, "position": self.position.copy()}
+        info: dict[str, Any] = {"distance": distance, "hand_distance": distance, "position": self.position.copy()}
         if self.report_success:
             info["success"] = distance < self.radius
         return info

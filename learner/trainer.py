@@ -5,9 +5,10 @@ then calls `after_step`, which does what is due at that step's interval: read an
 evaluate, ask a query, record metrics, checkpoint, heartbeat. The SAC updates are the runner's to schedule
 (`updates_due_by`), since when they run is how the loop executes.
 
-Reward timing: the transition (s_t, a_t, s_{t+1}) is rewarded r = f_psi(s_{t+1}) (sparse: success(s_{t+1})),
-so the action that reaches the goal is the one credited; Alg. 2 writes r(s_t) but the state it means is the
-outcome of the step. Episodes end on the time limit only (no terminal on success), so SAC bootstraps through.
+Reward timing: the transition (s_t, a_t, s_{t+1}) is rewarded r = f_psi(s_{t+1}) (without a classifier, the env's
+r_env(s_{t+1})), so the action that reaches the goal is the one credited; Alg. 2 writes r(s_t) but the state it
+means is the outcome of the step. Episodes end on the time limit only (no terminal on success), so SAC bootstraps
+through.
 """
 
 import functools
@@ -104,13 +105,14 @@ class Trainer:
         episode.length += 1
         episode.total += float(reward)
         next_obs = model_image(raw, cfg.image_size, cfg.env_id)
-        success = success_of(info)
-        if success is None and self.spec.needs_success:
+        success, env_reward = success_of(info), self.spec.env_reward_of(info)
+        if env_reward is None and self.spec.needs_env_reward:
             raise ValueError(
-                f"algorithm {cfg.algorithm!r} needs the env to report info['success']; {cfg.env_id} does not"
+                f"algorithm {cfg.algorithm!r} needs the env to report info[{self.spec.env_reward!r}]; "
+                f"{cfg.env_id} does not"
             )
         next_slot = self.replay.add_frame(next_obs)
-        self.replay.add(episode.obs_slot, step.action, next_slot, bool(terminated), success, person=step.person)
+        self.replay.add(episode.obs_slot, step.action, next_slot, bool(terminated), env_reward, person=step.person)
         self._observe(episode.env, next_obs, info, success)  # before any reset: the display render is of s_{t+1}
         if terminated or truncated or episode.length >= cfg.episode_steps:
             self.finished_returns.append(episode.total)

@@ -129,9 +129,9 @@ class HostUpdates:
         self.metrics.add(metrics)
 
     def _rewards(self, indices: np.ndarray) -> np.ndarray:
-        """Alg. 2 line 15, with the current classifier: r = f_psi(s'); sparse: the env's success(s')."""
+        """Alg. 2 line 15, with the current classifier: r = f_psi(s'); without one, the env's r_env(s')."""
         if self.reward_model is None:
-            return self.replay.success[indices].astype(np.float32)
+            return np.nan_to_num(self.replay.env_reward[indices], nan=0.0).astype(np.float32)
         return self.reward_model.rewards(self.replay, indices)
 
     def classifier_step(self, *, accuracy: bool, publish: bool = True) -> dict[str, float]:
@@ -250,7 +250,7 @@ class DeviceUpdates:
         """Sample, shift, reward and update, all on the device (Alg. 2 lines 13-16)."""
         batch = self.replay.sample(self.config.batch_size, self.pad, self.config.person_share)
         if self.reward_model is None:
-            reward = batch["success"]
+            reward = batch["env_reward"]
         else:  # r = f_psi(s') of the un-shifted s', as the host path's cache computes it
             reward = self.reward_model.rewards_on_device(batch["next_obs_unshifted"])
         agent = self.agent

@@ -41,8 +41,9 @@ class VisualDrapingEnv(SawyerMocapEnv):
     least `hang_depth`, 3 cm, below the top and within `hang_reach`, 4 cm, of the face: not spread out on the table),
     the cloth hangs at least 3 cm below the top beyond the far face, and no column of the grid runs back on itself
     by more than `fold_tolerance` (5 cm along the depth: a fold), else 0.0. The reward of `step` is that flag.
-    `info` also holds `covering` (the vertices on the top), `near_hang` and `far_hang` (1.0 or 0.0), `fold` (m) and
-    `hand_pos`.
+    `info` also holds `covering` (the vertices on the top), `near_hang` and `far_hang` (1.0 or 0.0), `fold` (m),
+    `hand_pos` and `hand_distance`: the hand's distance (m) to `hand_goal`, where it is when the cloth is draped
+    (what a hand-made reward on the end effector reads: the `hand_distance` method).
 
     ## Starting State
     The hand starts at rest at height 30 cm (the cloth's free edge about 5 cm above the table: below the box's top) at
@@ -61,6 +62,8 @@ class VisualDrapingEnv(SawyerMocapEnv):
     hand_high: ClassVar[tuple[float, float, float]] = (0.0, 0.16, 0.4)
     hand_init: ClassVar[tuple[float, float, float]] = (0.0, -0.17, 0.3)
     start_y: ClassVar[tuple[float, float]] = (-0.2, -0.14)
+    hand_goal: ClassVar[tuple[float, float]] = (0.075, 0.06)
+    """Where the hand (y, z) is when the cloth is draped: beyond the box's far face, low."""
     grid: ClassVar[tuple[int, int]] = (7, 11)
     """The cloth's vertices: across its width (x), along its length (from the free edge to the held one)."""
     covering_vertices: ClassVar[int] = 14
@@ -118,4 +121,5 @@ class VisualDrapingEnv(SawyerMocapEnv):
         return {
             "success": float(success), "covering": covering, "near_hang": float(near), "far_hang": float(far),
             "fold": fold, "hand_pos": self.hand_pos,
+            "hand_distance": float(np.linalg.norm(self.hand_pos[1:] - np.asarray(self.hand_goal))),
         }  # fmt: skip

@@ -115,7 +115,7 @@ def bookshelf_action(env: VisualBookshelfEnv) -> np.ndarray:
     return np.array([np.clip((slot - hand[0]) / step, -1.0, 1.0), height])
 
 
-DRAPE_WAYPOINTS = ((-0.08, 0.36), (0.0, 0.24), (0.06, 0.14), (0.075, 0.06))
+DRAPE_WAYPOINTS = ((-0.08, 0.36), (0.0, 0.24), (0.06, 0.14), VisualDrapingEnv.hand_goal)
 """The draping hand's path (y, z): up and over the near edge, the cloth laid across the top, down the far side."""
 
 

@@ -49,7 +49,7 @@ def test_device_replay_mirrors_the_host_buffer_through_a_ring_wrap() -> None:
         np.testing.assert_array_equal(mirror.frames.numpy(), replay.frames)
         for name in ("obs_slot", "next_slot", "actions", "not_done"):
             np.testing.assert_array_equal(getattr(mirror, name).numpy()[:used], getattr(replay, name)[:used])
-        np.testing.assert_array_equal(mirror.success.numpy()[:used], replay.success[:used])
+        np.testing.assert_array_equal(mirror.env_reward.numpy()[:used], replay.env_reward[:used])
         assert mirror.size.item() == used and mirror.last_index.item() == used - 1
 
 
@@ -68,7 +68,7 @@ def test_device_samples_come_from_the_stored_transitions_only() -> None:
     np.testing.assert_array_equal(batch["next_obs"].numpy(), replay.frames[replay.next_slot[chosen]])
     np.testing.assert_array_equal(batch["action"].numpy(), replay.actions[chosen])
     np.testing.assert_array_equal(batch["not_done"].numpy(), replay.not_done[chosen])
-    np.testing.assert_array_equal(batch["success"].numpy(), replay.success[chosen])
+    np.testing.assert_array_equal(batch["env_reward"].numpy(), replay.env_reward[chosen])
 
 
 def test_device_shift_is_a_drq_crop_of_the_edge_padded_image() -> None:

@@ -20,6 +20,7 @@ import torch
 from conftest import create_run, learn_once_beside
 from PIL import Image
 
+from contract.algorithms import ALGORITHM_SPECS
 from contract.config import TrainConfig
 from contract.envs import decode_image, encode_png, model_image, scale_action
 from contract.settings import Settings
@@ -105,11 +106,13 @@ def test_vice_raq_run_end_to_end_with_answers_arriving(setup: tuple[Settings, St
         ("raq", ENV, True, "host"),
         ("naive_classifier", ENV, True, "host"),
         ("sparse", ENV, True, "host"),
+        ("hand_distance", ENV, True, "host"),
         ("vice_raq", "DotReachNoSuccess-v0", False, "host"),  # bring your own env: 20 px obs, no success flag
         # the GPU path's code (replay, sampling, rewards and classifier steps on the device), eagerly on the CPU
         ("vice_raq", ENV, True, "device"),
         ("raq", ENV, True, "device"),
         ("sparse", ENV, True, "device"),
+        ("hand_distance", ENV, True, "device"),
     ],
 )
 def test_every_algorithm_runs(
@@ -119,13 +122,17 @@ def test_every_algorithm_runs(
     config = tiny_config(
         algorithm=algorithm, env_id=env_id, total_steps=150, checkpoint_every=1000, replay_pipeline=pipeline
     )
-    run_id = create_run(store, None if algorithm == "sparse" else goal_set_id, config)
+    spec = ALGORITHM_SPECS[algorithm]
+    run_id = create_run(store, goal_set_id if spec.needs_goals else None, config)
     assert work(settings, worker_name="w", once=True) == 0
     run = store.get_run(run_id=run_id)
     assert run.status == RunStatus.FINISHED, run.status_reason
     names = {metric.name for metric in store.metrics(run_id=run_id)}
     assert ("eval/success_rate" in names) == success_metric
-    assert "critic/loss" in names and ("reward/loss" in names) == (algorithm != "sparse")
+    assert "critic/loss" in names and ("reward/loss" in names) == spec.classifier
+    if spec.env_reward == "hand_distance":  # minus the dot's distance to the target: below 0 until it is on it
+        batch_rewards = [m.value for m in store.metrics(run_id=run_id, names=["reward/batch_mean"])]
+        assert batch_rewards and all(-2.9 < reward < 0 for reward in batch_rewards), batch_rewards
     queries = store.list_queries(run_id=run_id)
     assert (len(queries) > 0) == (algorithm in ("vice_raq", "raq"))
     assert all(q.ground_truth_success is None for q in queries) or success_metric
@@ -158,6 +165,10 @@ def test_failed_run_reports_the_reason(setup: tuple[Settings, Store, int]) -> No
     assert work(settings, worker_name="w", once=True) == 1
     run = store.get_run(run_id=run_id)
     assert run.status == RunStatus.FAILED and "needs a goal set" in run.status_reason
+    no_hand = create_run(store, None, tiny_config(algorithm="hand_distance", env_id="VisualPusher-v0"))
+    assert work(settings, worker_name="w", once=True) == 1
+    run = store.get_run(run_id=no_hand)
+    assert run.status == RunStatus.FAILED and "info['hand_distance']" in run.status_reason, run.status_reason
 
 
 @pytest.mark.parametrize(("algorithm", "no_answer_share"), [("raq", 0.0), ("vice_raq", 0.25), ("vice_raq", 0.0)])

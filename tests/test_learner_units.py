@@ -338,13 +338,19 @@ def test_replay_stores_each_frame_once_and_shifts_like_drq() -> None:
     frames = replay_like(rng, 4)
     slots = [replay.add_frame(f) for f in frames]
     for i in range(3):
-        replay.add(slots[i], np.full(2, i, np.float32), slots[i + 1], terminated=i == 2, success=float(i == 2))
+        replay.add(slots[i], np.full(2, i, np.float32), slots[i + 1], terminated=i == 2, env_reward=float(i == 2))
     assert replay.frames_added == 4 and len(replay) == 3
     batch = replay.sample(rng, 32)
     for j, index in enumerate(batch.indices):
         np.testing.assert_array_equal(batch.obs[j], frames[index])
         np.testing.assert_array_equal(batch.next_obs[j], frames[index + 1])
         assert batch.not_done[j] == (0.0 if index == 2 else 1.0)
+    # a checkpoint written when the replay kept only success(s') (as "success") loads it as the env's figure
+    older = {**replay.state_dict()}
+    older["success"] = older.pop("env_reward")
+    reloaded = ReplayBuffer(capacity=10, image_shape=(SIZE, SIZE, 3), action_dim=2)
+    reloaded.load_state_dict(older)
+    np.testing.assert_array_equal(reloaded.env_reward[:3], [0.0, 0.0, 1.0])
     # random shift == replicate-pad by `pad` then crop at a random offset
     shifted = random_shift(frames, 2, np.random.default_rng(5))
     offsets = np.random.default_rng(5).integers(0, 5, size=(4, 2))
