@@ -22,6 +22,7 @@ mean eval success with the spread over seeds, up to COMPARE_UNTIL env steps.
 
 import argparse
 import csv
+import io
 import json
 import statistics
 import sys
@@ -30,8 +31,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from PIL import Image  # noqa: E402
+
 from bench.compare import method_table, runs_by_method  # noqa: E402
 from bench.plot import line_plot  # noqa: E402
+from bench.robot_standin import HELP_KINDS  # noqa: E402
 from bench.robot_standin import TARGET_RATE as ROBOT_RATE  # noqa: E402
 from bench.robot_standin import TARGETS as ROBOT_TARGETS  # noqa: E402
 from bench.seeds import TARGETS as SEED_TARGETS  # noqa: E402
@@ -185,18 +189,27 @@ def robot_lines(by_group: dict[str, list[dict[str, str]]]) -> list[str]:
 
 
 def plot_robot() -> None:
-    """Each stand-in seed's eval success (by the env's ground truth) against env steps."""
-    series: dict[str, list[tuple[float, float]]] = {}
+    """Each stand-in seed's eval success (by the env's ground truth) against env steps to its preset's budget: one
+    panel per preset and kind of help, side by side."""
+    panels: dict[tuple[str, str], dict[str, list[tuple[float, float]]]] = {}
     for path in sorted(ROBOT_FIGURES.glob("*.json")) if ROBOT_FIGURES.exists() else []:
         figures = json.loads(path.read_text())
         points = [(float(row["step"]), float(row["success_rate"])) for row in figures["evaluations"]]
-        helped = figures.get("help", "none")
-        hands = "" if helped == "none" else f", {helped}"
-        series[f"{figures['preset']}{hands} seed {figures['seed']}"] = points
-    if series:
-        title = "pusher stand-in at 5 Hz: eval success by the env's ground truth, per seed"
-        line_plot(ROBOT_PLOT, series, title=title, y_range=(0.0, 1.0))
-        print(f"plot: {ROBOT_PLOT.relative_to(ROOT)}")
+        panels.setdefault((figures["preset"], figures.get("help", "none")), {})[f"seed {figures['seed']}"] = points
+    if not panels:
+        return
+    images = []
+    for (preset, helped), series in sorted(panels.items(), key=lambda item: (item[0][0], HELP_KINDS.index(item[0][1]))):
+        drawn = io.BytesIO()
+        title = f"pusher stand-in at 5 Hz, {preset}, help: {helped}"
+        budget = float(ROBOT_TARGETS[preset][0])
+        line_plot(drawn, dict(sorted(series.items())), title=title, y_range=(0.0, 1.0), x_max=budget, size=(600, 420))
+        images.append(Image.open(drawn))
+    figure = Image.new("RGB", (sum(image.width for image in images), images[0].height), "white")
+    for index, image in enumerate(images):
+        figure.paste(image, (index * images[0].width, 0))
+    figure.save(ROBOT_PLOT)
+    print(f"plot: {ROBOT_PLOT.relative_to(ROOT)}")
 
 
 def steps_reached(row: dict[str, str]) -> str:
