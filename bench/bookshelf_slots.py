@@ -31,7 +31,7 @@ from sim.scripted import bookshelf_action  # noqa: E402
 
 EPISODES = 20
 """Episodes, one per reset seed."""
-FRAME_EVERY = 4
+FRAME_EVERY = 2
 """Steps between two frames of the figure."""
 FRAMES = 6
 """The most frames in a row of the figure (the last is the success, or the episode's end)."""
@@ -69,7 +69,7 @@ def strip(frames: list[np.ndarray], label: str) -> Image.Image:
     """A row of at most FRAMES frames (evenly chosen, the last kept), captioned."""
     chosen = [frames[round(i)] for i in np.linspace(0, len(frames) - 1, min(FRAMES, len(frames)))]
     size = chosen[0].shape[0]
-    row = Image.new("RGB", (size * FRAMES, size + 22), "white")
+    row = Image.new("RGB", (size * len(chosen), size + 22), "white")
     for index, frame in enumerate(chosen):
         row.paste(Image.fromarray(frame), (index * size, 22))
     ImageDraw.Draw(row).text((6, 3), label, fill="black", font=ImageFont.load_default(size=15))
@@ -116,7 +116,7 @@ def main() -> None:
                 else f"the {SLOT_NAMES[result['slot']]} slot at step {result['step']}"
             )
             rows.append(strip(result["frames"], f"start x = {result['start_x'] * 100:+.0f} cm: {slot}"))
-        figure = Image.new("RGB", (rows[0].width, sum(row.height for row in rows)), "white")
+        figure = Image.new("RGB", (max(row.width for row in rows), sum(row.height for row in rows)), "white")
         for index, row in enumerate(rows):
             figure.paste(row, (0, index * rows[0].height))
         args.out.parent.mkdir(parents=True, exist_ok=True)
