@@ -15,9 +15,9 @@ The stand-in robot's table and plot: each row of docs/results/robot.csv (bench/r
 preset and help) against that bench's TARGETS, and each seed's evaluations from docs/results/robot/<preset>[-<help>]-
 seed<N>.json.
 
-The comparison: every folder of docs/results/compare/ is one bench/learn.py run, `pusher-<method>-seed<N>/`
-(its curve.csv and summary.json); bench/compare.py --by-method makes its table and its plot of each method's
-mean eval success with the spread over seeds, up to COMPARE_UNTIL env steps.
+The comparisons: every folder of docs/results/compare/ is one bench/learn.py run, `<task>-<method>-seed<N>/` (its
+curve.csv and summary.json); bench/compare.py --by-method makes each COMPARED_TASKS task's table and its plot of
+each method's mean eval success with the spread over seeds, up to COMPARE_UNTIL env steps.
 """
 
 import argparse
@@ -44,13 +44,17 @@ RESULTS = ROOT / "docs" / "results"
 SEEDS_CSV = RESULTS / "seeds.csv"
 NOISE_CSV = RESULTS / "seeds-noise.csv"
 COMPARE_RUNS = RESULTS / "compare"
-COMPARE_PLOT = RESULTS / "pusher-methods.png"
+COMPARED_TASKS = ("pusher", "bookshelf", "draping")
+"""The tasks whose reward methods are compared, each in its own table (results:compare-<task>) and plot."""
 COMPARE_UNTIL = 15_000
 """The comparison's horizon: the env steps every run of every method reached."""
 ROBOT_CSV = RESULTS / "robot.csv"
 ROBOT_FIGURES = RESULTS / "robot"
 ROBOT_PLOT = RESULTS / "robot-standin-seeds.png"
-TABLE_FILES = {"README.md": ("summary",), "docs/results.md": ("summary", "seeds", "noise", "robot", "compare")}
+TABLE_FILES = {
+    "README.md": ("summary",),
+    "docs/results.md": ("summary", "seeds", "noise", "robot", *(f"compare-{task}" for task in COMPARED_TASKS)),
+}
 """Which generated tables each file holds, each between <!-- results:NAME --> and <!-- /results:NAME -->."""
 
 
@@ -62,10 +66,10 @@ def median(values: list[float]) -> float | None:
     return statistics.median(values) if values else None
 
 
-def comparison() -> tuple[list[str], dict[str, list], dict[str, list]]:
-    """The comparison's table, and each method's mean curve and spread, from docs/results/compare/."""
-    folders = sorted(folder for folder in COMPARE_RUNS.iterdir() if folder.is_dir()) if COMPARE_RUNS.exists() else []
-    return method_table(runs_by_method(folders, COMPARE_UNTIL))
+def comparison(task: str) -> tuple[list[str], dict[str, list], dict[str, list]]:
+    """A task's comparison table, and each method's mean curve and spread, from docs/results/compare/<task>-*."""
+    folders = sorted(COMPARE_RUNS.glob(f"{task}-*-seed*")) if COMPARE_RUNS.exists() else []
+    return method_table(runs_by_method([folder for folder in folders if folder.is_dir()], COMPARE_UNTIL))
 
 
 def seed_rows(path: Path) -> dict[str, list[dict[str, str]]]:
@@ -239,10 +243,9 @@ def per_seed_lines(by_task: dict[str, list[dict[str, str]]]) -> list[str]:
 def generated_tables() -> dict[str, list[str]]:
     """Each generated table's lines, by name."""
     rows, noisy, robot = seed_rows(SEEDS_CSV), seed_rows(NOISE_CSV), robot_rows()
-    compared, _, _ = comparison()
     return {
         "summary": summary_lines(rows, robot), "seeds": per_seed_lines(rows), "noise": per_seed_lines(noisy),
-        "robot": robot_lines(robot), "compare": compared,
+        "robot": robot_lines(robot), **{f"compare-{task}": comparison(task)[0] for task in COMPARED_TASKS},
     }  # fmt: skip
 
 
@@ -274,11 +277,16 @@ def write_tables(*, check: bool) -> int:
     return 0
 
 
-def plot_comparison() -> None:
-    _, series, bands = comparison()
-    title = "pusher: eval success, mean and min-max over seeds 0-2, per reward method"
-    line_plot(COMPARE_PLOT, series, title=title, y_range=(0.0, 1.0), bands=bands)
-    print(f"plot: {COMPARE_PLOT.relative_to(ROOT)}")
+def plot_comparisons() -> None:
+    """Each compared task's plot, docs/results/<task>-methods.png, where it has runs."""
+    for task in COMPARED_TASKS:
+        _, series, bands = comparison(task)
+        if not series:
+            continue
+        plot = RESULTS / f"{task}-methods.png"
+        title = f"{task}: eval success, mean and min-max over seeds 0-2, per reward method"
+        line_plot(plot, series, title=title, y_range=(0.0, 1.0), bands=bands)
+        print(f"plot: {plot.relative_to(ROOT)}")
 
 
 def main() -> int:
@@ -287,7 +295,7 @@ def main() -> int:
     parser.add_argument("--check", action="store_true", help="with --tables: only say whether they are stale")
     args = parser.parse_args()
     if not args.tables:
-        plot_comparison()
+        plot_comparisons()
         plot_robot()
     return write_tables(check=args.check)
 
