@@ -29,7 +29,7 @@ from bench.plot import line_plot  # noqa: E402
 from bench.processes import stop_all  # noqa: E402
 from contract.config import TrainConfig  # noqa: E402
 from contract.envs import SIM_TASK_SETTINGS  # noqa: E402
-from contract.store import Store  # noqa: E402
+from contract.store import Conflict, Store  # noqa: E402
 from sim import TASKS  # noqa: E402
 
 CURVE_METRICS = [
@@ -104,7 +104,8 @@ def watch(
             stop_reason = f"env step {args.until_step} reached"
         if stop_reason:
             print(f"{stop_reason}: stopping the run", flush=True)
-            store.request_stop(run_id=run_id)
+            with contextlib.suppress(Conflict):  # (the run ended by itself meanwhile: at its last step)
+                store.request_stop(run_id=run_id)
             learner.wait(timeout=300)
             return stop_reason
         if time.monotonic() >= next_report:
