@@ -131,7 +131,7 @@ class HostUpdates:
     def _rewards(self, indices: np.ndarray) -> np.ndarray:
         """Alg. 2 line 15, with the current classifier: r = f_psi(s'); without one, the env's r_env(s')."""
         if self.reward_model is None:
-            return np.nan_to_num(self.replay.env_reward[indices], nan=0.0).astype(np.float32)
+            return self.replay.env_reward[indices].astype(np.float32)  # (reported at every step, or the run fails)
         return self.reward_model.rewards(self.replay, indices)
 
     def classifier_step(self, *, accuracy: bool, publish: bool = True) -> dict[str, float]:
