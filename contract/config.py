@@ -429,8 +429,12 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
     def cpu_robot(cls, **overrides: Any) -> "TrainConfig":
         """Robot settings a CPU learner keeps up with: the simulated tasks' 48x48 images and 8 filters (the
         paper's 84 px and 32 filters cost about 10x the compute per update, too much for a few cores beside a
-        5 Hz robot), with real_robot's questions (every 250 env steps, 50 in all) and no evaluation episodes."""
-        robot = cls(image_size=48, conv_filters=8, query_every=250, query_budget=50, eval_episodes=0)
+        5 Hz robot), with real_robot's questions (every 250 env steps, 50 in all) and no evaluation episodes; up
+        to 4 SAC updates a robot step, since a 200 ms step leaves a CPU learner time for about 3 of these small
+        ones even beside a second robot (docs/results.md: the stand-in's steps to 90%)."""
+        robot = cls(
+            image_size=48, conv_filters=8, query_every=250, query_budget=50, eval_episodes=0, updates_per_step=4
+        )
         return replace(robot, **overrides)
 
 

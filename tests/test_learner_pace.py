@@ -73,7 +73,7 @@ def test_the_cpu_preset_behind_is_told_to_find_a_faster_learner_and_a_gpu_is_nam
     cpu = learner_pace(_config("cpu_robot"), _at_5_hz([0.4, 0.5]))
     assert cpu is not None and cpu.behind and cpu.suggested_fields == {}
     assert cpu.cause == "48 px and 8 filters on this CPU give 0.5 updates a robot step"
-    assert "GPU learner (device cuda)" in cpu.suggestion and "updates_per_step (now 2)" in cpu.suggestion
+    assert "GPU learner (device cuda)" in cpu.suggestion and "updates_per_step (now 4)" in cpu.suggestion
     gpu = learner_pace(_config(device="cuda"), _at_5_hz([0.2, 0.2]))
     assert gpu is not None and gpu.cause == "84 px and 32 filters on this GPU (cuda) give 0.2 updates a robot step"
 
