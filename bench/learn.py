@@ -29,7 +29,7 @@ from bench.plot import line_plot  # noqa: E402
 from bench.processes import stop_all  # noqa: E402
 from contract.config import TrainConfig  # noqa: E402
 from contract.envs import SIM_TASK_SETTINGS  # noqa: E402
-from contract.store import Conflict, Store  # noqa: E402
+from contract.store import Conflict, RunStatus, Store  # noqa: E402
 from sim import TASKS  # noqa: E402
 
 CURVE_METRICS = [
@@ -252,12 +252,13 @@ def main() -> int:
     upgrade(database_url)
     store = Store(database_url)
     earlier_minutes = 0.0
-    if args.resume:  # the one run of this --out, as it was stopped (or re-queued by an interrupt: claimed as it is)
+    if args.resume:  # the one run of this --out, as it was stopped, re-queued by an interrupt or left by a kill
         run = store.list_runs()[0]
         if args.total_steps and args.total_steps > max(run.total_steps, run.step or 0):  # trained further
             run = store.continue_run(run_id=run.id, total_steps=args.total_steps)
-        elif run.status != "queued":
+        elif run.status in (RunStatus.STOPPED, RunStatus.FAILED):
             run = store.resume_run(run_id=run.id)
+        # (queued: claimed as it is; starting or training, its learner killed: claimed once its heartbeat is stale)
         earlier = out / "summary.json"  # (absent when the earlier run was killed before writing it)
         earlier_minutes = float(json.loads(earlier.read_text())["wall_minutes"]) if earlier.exists() else 0.0
     else:
