@@ -35,13 +35,14 @@ from sim import PRESETS, TASKS  # noqa: E402
 from sim.goals import make_goal_examples  # noqa: E402
 from sim.scripted import scripted_action  # noqa: E402
 
+PATH_BINS = (0.03, 0.05, 0.08, 0.12, 0.16)
+"""Distance-to-goal bin edges (m) for f_psi's mean along the scripted path: success, then ever farther."""
 
-def frames(
-    env, episodes: int, steps: int, scripted: bool, seed: int, size: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every observation of `episodes` episodes (pink-noise actions, or the scripted controller's), its distance to
-    success and its step in the episode."""
-    images, distances, steps_in = [], [], []
+
+def frames(env, episodes: int, steps: int, scripted: bool, seed: int, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every observation of `episodes` episodes (pink-noise actions, or the scripted controller's) and its distance
+    to success."""
+    images, distances = [], []
     generator = torch.Generator().manual_seed(seed)
     space = env.action_space
     for episode in range(episodes):
@@ -53,10 +54,9 @@ def frames(
             raw, _, terminated, truncated, info = env.step(action)
             images.append(model_image(raw, size))
             distances.append(float(info[key]))
-            steps_in.append(step)
             if terminated or truncated:
                 break
-    return np.stack(images), np.array(distances), np.array(steps_in)
+    return np.stack(images), np.array(distances)
 
 
 def main() -> int:
@@ -76,14 +76,16 @@ def main() -> int:
     episode_steps = PRESETS[TASKS[args.task]].get("episode_steps", config.episode_steps)
     goals = np.stack([g.image for g in make_goal_examples(args.task, args.goals, seed=0, image_size=size)])
     env = make_env(TASKS[args.task], image_size=size, display_size=64)
-    replay, replay_distance, _ = frames(env, args.episodes, episode_steps, False, 10_000 + args.seed, size)
-    path, path_distance, path_step = frames(env, args.scripted, episode_steps, True, 20_000 + args.seed, size)
+    replay, replay_distance = frames(env, args.episodes, episode_steps, False, 10_000 + args.seed, size)
+    path, path_distance = frames(env, args.scripted, episode_steps, True, 20_000 + args.seed, size)
     env.close()
     held = rng.random(len(replay)) < 0.2
     train = np.flatnonzero(~held)
+    path_bins = np.bincount(np.digitize(path_distance, PATH_BINS), minlength=6)
     print(f"{args.task}: {len(goals)} goal photos, replay {len(replay)} frames (distance median "
-          f"{np.median(replay_distance):.3f}, min {replay_distance.min():.3f}), scripted path {len(path)} frames; "
-          f"shift pad {pad} px", flush=True)  # fmt: skip
+          f"{np.median(replay_distance):.3f}, min {replay_distance.min():.3f}), scripted path {len(path)} frames, "
+          f"per distance bin (edges {PATH_BINS} m) {' '.join(map(str, path_bins))}; shift pad {pad} px",
+          flush=True)  # fmt: skip
     models = {name: RewardModel.for_run(config, np.random.default_rng(args.seed)) for name in ("plain", "shifted")}
     models["shifted"].load_state_dict(models["plain"].state_dict())  # the same start
     batch = config.classifier_batch_size
@@ -99,14 +101,15 @@ def main() -> int:
         for name, model in models.items():
             on_replay, on_path = model.logits(replay), model.logits(path)
             top = np.argsort(on_replay)[::-1]
-            top_share = top[: max(1, len(top) // 100)]
-            fifths = " ".join(f"{on_path[path_step * 5 // episode_steps == f].mean():+.1f}" for f in range(5))
+            top_share_distance = np.median(replay_distance[top[: max(1, len(top) // 100)]])
+            bins = np.digitize(path_distance, PATH_BINS)
+            by_distance = " ".join(f"{on_path[bins == b].mean():+.1f}" if np.any(bins == b) else "-" for b in range(6))
             print(
                 f"step {step:>5} {name:>7}: acc goals {np.mean(model.logits(goals) > 0):.2f}, held-out replay "
                 f"{np.mean(on_replay[held] < 0):.2f}; rho(f, closeness) path "
                 f"{rank_correlation(on_path, -path_distance):+.2f}, replay "
-                f"{rank_correlation(on_replay, -replay_distance):+.2f}; f along the path by fifth {fifths}; replay's "
-                f"top frame at {replay_distance[top[0]]:.3f}, top 1% {np.median(replay_distance[top_share]):.3f}",
+                f"{rank_correlation(on_replay, -replay_distance):+.2f}; f on the path by distance {by_distance}; "
+                f"replay's top frame at {replay_distance[top[0]]:.3f}, top 1% {top_share_distance:.3f}",
                 flush=True,
             )
     return 0
