@@ -1,13 +1,15 @@
 """Before any "yes": does f_psi, trained on a task's few goal photos against exploration frames, rate frames nearer
-success higher? With and without DrQ's random shift on its training images, in one run.
+success higher? As a run trains it, on randomly shifted images, and with "no" answers on near misses, in one run.
 
     MUJOCO_GL=egl python bench/goal_generalization.py --task picker [--goals 10] [--episodes 40] [--steps 1000]
 
 This is the classifier of a VICE-RAQ run before the person's first "yes": positives are the goal photos alone,
 negatives the policy's replay, which early on is exploration. The frames come from `--episodes` episodes of the
 warm-up's pink-noise actions (the replay) and `--scripted` episodes of the scripted controller (a path that
-succeeds). Two f_psi (the run's network, mixup, lr and batch; the sigmoid form, since a near-uniform policy's
-log pi is a constant) train side by side on the same batches, one of them on randomly shifted images. Every
+succeeds). Three f_psi (the run's network, mixup, lr and batch; the sigmoid form, since a near-uniform policy's
+log pi is a constant) train side by side on the same batches: as a run's, on images moved by DrQ's random shift,
+and with `--no-answers` frames of other scripted episodes 3-12 cm from the goal (the near misses a question asks
+about before any success) as a quarter of its negatives, as VICE-RAQ's "no" answers are. Every
 `--every` steps it prints, for each: the held-out replay accuracy, f_psi's rank correlation with closeness along
 the scripted path and along the replay, and the distance to the goal of the replay frame f_psi rates highest and
 of its top 1% (the frames a query asks about), beside the replay's median. A reward SAC can climb correlates with
@@ -35,6 +37,10 @@ from sim import PRESETS, TASKS  # noqa: E402
 from sim.goals import make_goal_examples  # noqa: E402
 from sim.scripted import scripted_action  # noqa: E402
 
+VARIANTS = ("plain", "shifted", "no answers")
+"""The f_psi trained side by side: as a run's, on randomly shifted images, and with "no" answers on near misses as
+a quarter of its negatives (VICE-RAQ's `no_answer_share`)."""
+NO_ANSWER_SHARE = 0.25
 PATH_BINS = (0.03, 0.05, 0.08, 0.12, 0.16)
 """Distance-to-goal bin edges (m) for f_psi's mean along the scripted path: success, then ever farther."""
 
@@ -67,6 +73,7 @@ def main() -> int:
     parser.add_argument("--scripted", type=int, default=10, help="scripted episodes: the path to success")
     parser.add_argument("--steps", type=int, default=1000, help="classifier steps")
     parser.add_argument("--every", type=int, default=250, help="print every this many steps")
+    parser.add_argument("--no-answers", type=int, default=20, help='near misses answered "no" (the third f_psi)')
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     torch.manual_seed(args.seed)
@@ -78,7 +85,11 @@ def main() -> int:
     env = make_env(TASKS[args.task], image_size=size, display_size=64)
     replay, replay_distance = frames(env, args.episodes, episode_steps, False, 10_000 + args.seed, size)
     path, path_distance = frames(env, args.scripted, episode_steps, True, 20_000 + args.seed, size)
+    other_path, other_distance = frames(env, args.scripted, episode_steps, True, 30_000 + args.seed, size)
     env.close()
+    near = np.flatnonzero((other_distance >= PATH_BINS[0]) & (other_distance < PATH_BINS[3]))
+    no_answers = other_path[rng.choice(near, size=min(args.no_answers, len(near)), replace=False)]
+    no_count = round(NO_ANSWER_SHARE * config.classifier_batch_size)
     held = rng.random(len(replay)) < 0.2
     train = np.flatnonzero(~held)
     path_bins = np.bincount(np.digitize(path_distance, PATH_BINS), minlength=6)
@@ -86,16 +97,18 @@ def main() -> int:
           f"{np.median(replay_distance):.3f}, min {replay_distance.min():.3f}), scripted path {len(path)} frames, "
           f"per distance bin (edges {PATH_BINS} m) {' '.join(map(str, path_bins))}; shift pad {pad} px",
           flush=True)  # fmt: skip
-    models = {name: RewardModel.for_run(config, np.random.default_rng(args.seed)) for name in ("plain", "shifted")}
-    models["shifted"].load_state_dict(models["plain"].state_dict())  # the same start
+    models = {name: RewardModel.for_run(config, np.random.default_rng(args.seed)) for name in VARIANTS}
+    for name in VARIANTS[1:]:
+        models[name].load_state_dict(models["plain"].state_dict())  # the same start
     batch = config.classifier_batch_size
     for step in range(1, args.steps + 1):
         positives = goals[rng.integers(0, len(goals), batch)]
         negatives = replay[train[rng.integers(0, len(train), batch)]]
-        for name, model in models.items():
-            if name == "shifted":
-                positives, negatives = random_shift(positives, pad, rng), random_shift(negatives, pad, rng)
-            model.update_classifier(positives, negatives, accuracy=False)
+        answered = np.concatenate([no_answers[rng.integers(0, len(no_answers), no_count)], negatives[no_count:]])
+        shifted = random_shift(positives, pad, rng), random_shift(negatives, pad, rng)
+        models["plain"].update_classifier(positives, negatives, accuracy=False)
+        models["shifted"].update_classifier(*shifted, accuracy=False)
+        models["no answers"].update_classifier(positives, answered, accuracy=False)
         if step % args.every and step != args.steps:
             continue
         for name, model in models.items():
@@ -105,7 +118,7 @@ def main() -> int:
             bins = np.digitize(path_distance, PATH_BINS)
             by_distance = " ".join(f"{on_path[bins == b].mean():+.1f}" if np.any(bins == b) else "-" for b in range(6))
             print(
-                f"step {step:>5} {name:>7}: acc goals {np.mean(model.logits(goals) > 0):.2f}, held-out replay "
+                f"step {step:>5} {name:>10}: acc goals {np.mean(model.logits(goals) > 0):.2f}, held-out replay "
                 f"{np.mean(on_replay[held] < 0):.2f}; rho(f, closeness) path "
                 f"{rank_correlation(on_path, -path_distance):+.2f}, replay "
                 f"{rank_correlation(on_replay, -replay_distance):+.2f}; f on the path by distance {by_distance}; "
