@@ -9,7 +9,7 @@ warm-up's pink-noise actions (the replay) and `--scripted` episodes of the scrip
 succeeds). Three f_psi (the run's network, mixup, lr and batch; the sigmoid form, since a near-uniform policy's
 log pi is a constant) train side by side on the same batches: as a run's, on images moved by DrQ's random shift,
 and with `--no-answers` frames of other scripted episodes 3-12 cm from the goal (the near misses a question asks
-about before any success) as a quarter of its negatives, as VICE-RAQ's "no" answers are. Every
+about before any success) as `--no-share` of its negatives, as VICE-RAQ's "no" answers are. Every
 `--every` steps it prints, for each: the held-out replay accuracy, f_psi's rank correlation with closeness along
 the scripted path and along the replay, and the distance to the goal of the replay frame f_psi rates highest and
 of its top 1% (the frames a query asks about), beside the replay's median. A reward SAC can climb correlates with
@@ -39,8 +39,7 @@ from sim.scripted import scripted_action  # noqa: E402
 
 VARIANTS = ("plain", "shifted", "no answers")
 """The f_psi trained side by side: as a run's, on randomly shifted images, and with "no" answers on near misses as
-a quarter of its negatives (VICE-RAQ's `no_answer_share`)."""
-NO_ANSWER_SHARE = 0.25
+`--no-share` of its negatives (VICE-RAQ's `no_answer_share`)."""
 PATH_BINS = (0.03, 0.05, 0.08, 0.12, 0.16)
 """Distance-to-goal bin edges (m) for f_psi's mean along the scripted path: success, then ever farther."""
 
@@ -74,12 +73,15 @@ def main() -> int:
     parser.add_argument("--steps", type=int, default=1000, help="classifier steps")
     parser.add_argument("--every", type=int, default=250, help="print every this many steps")
     parser.add_argument("--no-answers", type=int, default=20, help='near misses answered "no" (the third f_psi)')
+    parser.add_argument("--no-share", type=float, default=0.25, help='share of the third\'s negatives answered "no"')
+    parser.add_argument("--pad", type=int, default=None, help="the second's shift in pixels (default: the run's)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
     config = TrainConfig(algorithm="raq", precision="fp32")
-    size, pad = config.image_size, shift_pad(config.image_size)
+    size = config.image_size
+    pad = shift_pad(size) if args.pad is None else args.pad
     episode_steps = PRESETS[TASKS[args.task]].get("episode_steps", config.episode_steps)
     goals = np.stack([g.image for g in make_goal_examples(args.task, args.goals, seed=0, image_size=size)])
     env = make_env(TASKS[args.task], image_size=size, display_size=64)
@@ -89,7 +91,7 @@ def main() -> int:
     env.close()
     near = np.flatnonzero((other_distance >= PATH_BINS[0]) & (other_distance < PATH_BINS[3]))
     no_answers = other_path[rng.choice(near, size=min(args.no_answers, len(near)), replace=False)]
-    no_count = round(NO_ANSWER_SHARE * config.classifier_batch_size)
+    no_count = round(args.no_share * config.classifier_batch_size)
     held = rng.random(len(replay)) < 0.2
     train = np.flatnonzero(~held)
     path_bins = np.bincount(np.digitize(path_distance, PATH_BINS), minlength=6)
