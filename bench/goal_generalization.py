@@ -1,7 +1,7 @@
 """Before any "yes": does f_psi, trained on a task's few goal photos against exploration frames, rate frames nearer
 success higher? As a run trains it, on randomly shifted images, and with "no" answers on near misses, in one run.
 
-    MUJOCO_GL=egl python bench/goal_generalization.py --task picker [--goals 10] [--episodes 40] [--steps 1000]
+    MUJOCO_GL=egl python bench/goal_generalization.py --task picker [--steps 1000] [--pad 8] [--no-share 0.05]
 
 This is the classifier of a VICE-RAQ run before the person's first "yes": positives are the goal photos alone,
 negatives the policy's replay, which early on is exploration. The frames come from `--episodes` episodes of the
@@ -10,10 +10,11 @@ succeeds). Three f_psi (the run's network, mixup, lr and batch; the sigmoid form
 log pi is a constant) train side by side on the same batches: as a run's, on images moved by DrQ's random shift,
 and with `--no-answers` frames of other scripted episodes 3-12 cm from the goal (the near misses a question asks
 about before any success) as `--no-share` of its negatives, as VICE-RAQ's "no" answers are. Every
-`--every` steps it prints, for each: the held-out replay accuracy, f_psi's rank correlation with closeness along
-the scripted path and along the replay, and the distance to the goal of the replay frame f_psi rates highest and
-of its top 1% (the frames a query asks about), beside the replay's median. A reward SAC can climb correlates with
-closeness; a classifier that only knows the goal photos' pixels rates everything else alike.
+`--every` steps it prints, for each: the held-out replay accuracy and mean f_psi on the replay, f_psi's rank
+correlation with closeness along the scripted path and along the replay, f_psi on the path by distance to the goal,
+and the distance of the replay frame f_psi rates highest and of its top 1% (the frames a query asks about). A
+reward SAC can climb correlates with closeness; a classifier that only knows the goal photos' pixels rates everything
+else alike.
 """
 
 import argparse
@@ -121,7 +122,7 @@ def main() -> int:
             by_distance = " ".join(f"{on_path[bins == b].mean():+.1f}" if np.any(bins == b) else "-" for b in range(6))
             print(
                 f"step {step:>5} {name:>10}: acc goals {np.mean(model.logits(goals) > 0):.2f}, held-out replay "
-                f"{np.mean(on_replay[held] < 0):.2f}; rho(f, closeness) path "
+                f"{np.mean(on_replay[held] < 0):.2f} (mean f {on_replay.mean():+.1f}); rho(f, closeness) path "
                 f"{rank_correlation(on_path, -path_distance):+.2f}, replay "
                 f"{rank_correlation(on_replay, -replay_distance):+.2f}; f on the path by distance {by_distance}; "
                 f"replay's top frame at {replay_distance[top[0]]:.3f}, top 1% {top_share_distance:.3f}",
