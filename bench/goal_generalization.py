@@ -95,10 +95,11 @@ def main() -> int:
     no_count = round(args.no_share * config.classifier_batch_size)
     held = rng.random(len(replay)) < 0.2
     train = np.flatnonzero(~held)
-    path_bins = np.bincount(np.digitize(path_distance, PATH_BINS), minlength=6)
+    path_bin = np.digitize(path_distance, PATH_BINS)
     print(f"{args.task}: {len(goals)} goal photos, replay {len(replay)} frames (distance median "
           f"{np.median(replay_distance):.3f}, min {replay_distance.min():.3f}), scripted path {len(path)} frames, "
-          f"per distance bin (edges {PATH_BINS} m) {' '.join(map(str, path_bins))}; shift pad {pad} px",
+          f"per distance bin (edges {PATH_BINS} m) {' '.join(map(str, np.bincount(path_bin, minlength=6)))}; "
+          f"shift pad {pad} px",
           flush=True)  # fmt: skip
     models = {name: RewardModel.for_run(config, np.random.default_rng(args.seed)) for name in VARIANTS}
     for name in VARIANTS[1:]:
@@ -118,8 +119,9 @@ def main() -> int:
             on_replay, on_path = model.logits(replay), model.logits(path)
             top = np.argsort(on_replay)[::-1]
             top_share_distance = np.median(replay_distance[top[: max(1, len(top) // 100)]])
-            bins = np.digitize(path_distance, PATH_BINS)
-            by_distance = " ".join(f"{on_path[bins == b].mean():+.1f}" if np.any(bins == b) else "-" for b in range(6))
+            by_distance = " ".join(
+                f"{on_path[path_bin == b].mean():+.1f}" if np.any(path_bin == b) else "-" for b in range(6)
+            )
             print(
                 f"step {step:>5} {name:>10}: acc goals {np.mean(model.logits(goals) > 0):.2f}, held-out replay "
                 f"{np.mean(on_replay[held] < 0):.2f} (mean f {on_replay.mean():+.1f}); rho(f, closeness) path "
