@@ -38,13 +38,13 @@ FRAMES = 6
 SLOT_NAMES = ("left", "right")
 
 
-def policy_file(run_dir: Path) -> Path:
-    """The run's best evaluated policy, else its latest."""
-    for name in ("policy-best.pt", "policy.pt"):
+def policy_file(run_dir: Path, names: tuple[str, ...] = ("policy-best.pt", "policy.pt")) -> Path:
+    """The run's first policy of `names` that it has: by default its best evaluated one, else its latest."""
+    for name in names:
         found = sorted(run_dir.glob(f"**/checkpoints/run-*/{name}"))
         if found:
             return found[-1]
-    raise SystemExit(f"no policy-best.pt or policy.pt under {run_dir}")
+    raise SystemExit(f"no {' or '.join(names)} under {run_dir}")
 
 
 def episode(env: gymnasium.Env, act: Callable[[np.ndarray, gymnasium.Env], np.ndarray], seed: int) -> dict:

@@ -24,25 +24,17 @@ import numpy as np  # noqa: E402
 from PIL import Image  # noqa: E402
 
 import sim  # noqa: E402, F401 - registers the tasks
-from bench.bookshelf_slots import strip  # noqa: E402
+from bench.bookshelf_slots import policy_file, strip  # noqa: E402
 
 EPISODES = 10
 """Episodes per run, one per reset seed."""
-
-
-def last_policy_file(run_dir: Path) -> Path:
-    """The run's latest policy (what it ended with, not its best evaluation)."""
-    found = sorted(run_dir.glob("**/checkpoints/run-*/policy.pt"))
-    if not found:
-        raise SystemExit(f"no policy.pt under {run_dir}")
-    return found[-1]
 
 
 def final_states(run_dir: Path) -> tuple[str, list[dict], np.ndarray]:
     """The run's policy (described), the final info of each episode, and the last frame of the first."""
     from learner.policy import load_policy  # noqa: PLC0415 - torch only here
 
-    path = last_policy_file(run_dir)
+    path = policy_file(run_dir, ("policy.pt",))  # (what the run ended with, not its best evaluation)
     policy = load_policy(path)
     env = gymnasium.make("VisualDraping-v0", render_mode="rgb_array")
     finals, first_frame = [], None
