@@ -54,7 +54,7 @@ class Target(NamedTuple):
 TARGETS: dict[str, Target] = {
     "pusher": Target(0.9, 20_000, 25, median_steps=12_000),
     "door": Target(0.9, 100_000, 50),
-    "picker": Target(0.8, 100_000, 20, median_steps=39_000),
+    "picker": Target(0.8, 100_000, 50),
     "bookshelf": Target(0.9, 15_000, 20),
     "draping": Target(0.9, 15_000, 20),
 }

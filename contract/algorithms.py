@@ -24,8 +24,7 @@ class AlgorithmSpec:
     queries: bool = False
     """Asks the person about the observation it rates likeliest to be a success (Sec. IV-A)."""
     negatives: Negatives = "replay"
-    """replay: samples of the policy's replay (TrainConfig's shares from the last epoch and the 'no' answers); pool:
-    first-epoch observations plus the 'no' answers."""
+    """replay: uniform samples of the policy's replay; pool: first-epoch observations plus the 'no' answers."""
     train_once: bool = False
     """f_psi is trained once, after the first epoch, then frozen (the naive classifier)."""
     env_reward: EnvReward = "success"

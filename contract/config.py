@@ -28,9 +28,7 @@ RETIRED_FIELDS = frozenset({
 })  # fmt: skip
 """Fields that runs stored by earlier versions may hold and that no longer change anything: dropped when read
 (docs/design.md keeps what each was measured to do)."""
-FIELDS_BEFORE_THEY_EXISTED: dict[str, Any] = {
-    "critic_layer_norm": False, "exploration_noise_beta": 0.0, "recent_negative_share": 0.0,
-}
+FIELDS_BEFORE_THEY_EXISTED: dict[str, Any] = {"critic_layer_norm": False, "exploration_noise_beta": 0.0}
 """Fields whose default now differs from what runs stored before the field existed did: a stored config without
 one reads as it ran."""
 DEVICE_PATTERN = re.compile(r"cpu|cuda(:(1[0-5]|[0-9]))?")
@@ -216,12 +214,9 @@ class ClassifierConfig:
     """Environment steps per epoch: classifier training, answer reading and evaluation happen once each."""
     mixup_alpha: float = bounded(1.0, 0, 100.0)
     """Mixup lambda ~ Beta(alpha, alpha); 0 disables mixup."""
-    no_answer_share: float = bounded(0.1, 0, 1.0)
+    no_answer_share: float = bounded(0.25, 0, 1.0)
     """VICE-RAQ: share of classifier negatives drawn from "no" answers (once there are any); 0: the paper's (replay
     only)."""
-    recent_negative_share: float = bounded(0.1, 0, 1.0)
-    """VICE methods: share of classifier negatives drawn from the last epoch_steps transitions (what the policy
-    visits now) rather than the whole replay; 0: the paper's (uniform replay)."""
     naive_classifier_steps: int = bounded(10_000, high=1_000_000)
     """naive_classifier: gradient steps of its one-off training after the first epoch."""
     raq_initial_negatives: int = bounded(2000, high=1_000_000)
@@ -354,8 +349,6 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
                 message = None if bounds is None else bounds.error(value)
             if message is not None:
                 errors.append((spec.name, message))
-        if self.no_answer_share + self.recent_negative_share > 1:
-            errors.append(("recent_negative_share", "must not exceed 1 together with no_answer_share"))
         return errors
 
     def part(self, part: type[Part]) -> Part:
@@ -419,7 +412,7 @@ class TrainConfig(ExecutionConfig, EvaluationConfig, MethodConfig, TaskConfig):
         and replay alone as f_psi's negatives."""
         faithful = cls(
             encoder="paper", shared_encoder=False, augmentation="none", precision="fp32", critic_layer_norm=False,
-            updates_per_step=1, classifier_steps=10, classifier_lr=1e-4, no_answer_share=0.0, recent_negative_share=0.0,
+            updates_per_step=1, classifier_steps=10, classifier_lr=1e-4, no_answer_share=0.0,
             exploration_noise_beta=0.0,
         )  # fmt: skip
         return replace(faithful, **overrides)

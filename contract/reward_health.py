@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-from contract.config import FEWEST_GOAL_IMAGES, TrainConfig
+from contract.config import FEWEST_GOAL_IMAGES
 
 Level = Literal["learning", "stuck", "watch", "too early"]
 Series = Sequence[tuple[int, float]]
@@ -98,8 +98,7 @@ def reward_verdict(
             f"f_psi rated {rated} of the last {len(recent)} asked states a success (p > 0.5) and all were answered "
             "no: the policy is exploiting the classifier.",
             "Ask more often (a lower query_every) and weigh the no answers more among f_psi's negatives (a higher "
-            f"no_answer_share than its {TrainConfig().no_answer_share}), and add goal photos that show the finished "
-            "task from the camera's view.",
+            "no_answer_share than its 0.25), and add goal photos that show the finished task from the camera's view.",
             asks_for_help=True,
         )
     if len(agreement) and len(answered) >= 2 * MIN_QUERIES and agreement[-1][1] < LOW_AGREEMENT:

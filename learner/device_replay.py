@@ -35,8 +35,6 @@ class DeviceReplay:
         self.size = torch.zeros((), dtype=torch.float32, device=device)
         """len(host) as a device scalar: samples read it at replay time, so a captured sample sees the buffer grow."""
         self.last_index = torch.zeros((), dtype=torch.int64, device=device)
-        self.newest_index = torch.zeros((), dtype=torch.int64, device=device)
-        """The index of the transition added last (the ring's newest), as a device scalar."""
         self.person_index = torch.zeros(replay.capacity, dtype=torch.int64, device=device)
         """The host's person_indices() in their first person_count places."""
         self.person_count = torch.zeros((), dtype=torch.float32, device=device)
@@ -67,7 +65,6 @@ class DeviceReplay:
         self.frames_synced, self.added_synced = host.frames_added, host.added
         self.size.fill_(float(len(host)))
         self.last_index.fill_(max(len(host) - 1, 0))
-        self.newest_index.fill_((host.added - 1) % host.capacity)
 
     def _to_device(self, array: np.ndarray) -> torch.Tensor:
         """A host array on the device without waiting for it (pinned staging; the caching host allocator keeps
@@ -116,9 +113,3 @@ class DeviceReplay:
     def sample_next_frames(self, count: int) -> torch.Tensor:
         """Uniform replay observations (the s' of uniform transitions): VICE's negatives."""
         return self.frames[self.next_slot[self.sample_indices(count)]]
-
-    def sample_recent_next_frames(self, count: int, window: int) -> torch.Tensor:
-        """ReplayBuffer.sample_recent_next_frames on the device (no host read of the buffer's size)."""
-        span = self.size.clamp(max=float(window))
-        back = torch.minimum((torch.rand(count, device=self.device) * span).long(), (span - 1).long())
-        return self.frames[self.next_slot[(self.newest_index - back) % self.host.capacity]]

@@ -136,11 +136,6 @@ class ReplayBuffer:
         indices = rng.integers(0, len(self), size=count)
         return self.frames[self.next_slot[indices]]
 
-    def sample_recent_next_frames(self, rng: np.random.Generator, count: int, window: int) -> np.ndarray:
-        """The s' of transitions drawn uniformly from the last `window` added: what the policy visits now."""
-        back = rng.integers(0, min(window, len(self)), size=count)
-        return self.frames[self.next_slot[(self.added - 1 - back) % self.capacity]]
-
     def frames_since(self, first_frame: int) -> np.ndarray:
         """All frames added since the absolute frame number `first_frame` (still in the ring); a negative
         `first_frame` (fewer frames than asked for) means from the first frame."""

@@ -105,11 +105,6 @@ def no_answer_count(config: TrainConfig) -> int:
     return round(config.no_answer_share * config.classifier_batch_size)
 
 
-def recent_negative_count(config: TrainConfig) -> int:
-    """Negatives per classifier step drawn from the last epoch's transitions (replay-negative methods)."""
-    return round(config.recent_negative_share * config.classifier_batch_size)
-
-
 class HostUpdates:
     """The CPU path: numpy batches, cached rewards, metrics read per update."""
 
@@ -157,18 +152,14 @@ class HostUpdates:
         )
 
     def negatives(self, rng: np.random.Generator | None = None) -> np.ndarray:
-        """A classifier step's negatives: replay samples (VICE methods: the first no_answer_share of them from the
-        observations answered no once there is one, the next recent_negative_share from the last epoch's
-        transitions, the rest uniform), or the pool (raq, naive)."""
+        """A classifier step's negatives: uniform replay samples (VICE methods; the first no_answer_share of them
+        from the observations answered no, once there is one), or the pool (raq, naive)."""
         model, size, rng = self.reward_model, self.config.classifier_batch_size, rng or self.rng
         assert model is not None
         if self.spec.negatives == "pool":
             return model.sample_negatives(size, rng)
         negatives = self.replay.sample_next_frames(rng, size)
-        answered, recent = no_answer_count(self.config), recent_negative_count(self.config)
-        if recent:
-            window = self.config.epoch_steps
-            negatives[answered : answered + recent] = self.replay.sample_recent_next_frames(rng, recent, window)
+        answered = no_answer_count(self.config)
         if answered and len(model.answered_negatives):
             picks = rng.integers(0, len(model.answered_negatives), size=answered)
             negatives[:answered] = model.answered_negatives[picks]
@@ -302,14 +293,12 @@ class DeviceUpdates:
         if self.spec.negatives == "pool":
             return self.pool_negatives.sample(size)
         negatives = self.replay.sample_next_frames(size)
-        answered, recent = no_answer_count(self.config), recent_negative_count(self.config)
-        parts = [negatives[answered + recent :]]
-        if recent:
-            parts.insert(0, self.replay.sample_recent_next_frames(recent, self.config.epoch_steps))
-        if answered:
-            use = (self.no_answers.count > 0).view(1, 1, 1, 1)  # (no host read: the graph holds the choice)
-            parts.insert(0, torch.where(use, self.no_answers.sample(answered), negatives[:answered]))
-        return torch.cat(parts)
+        answered = no_answer_count(self.config)
+        if not answered:
+            return negatives
+        use = (self.no_answers.count > 0).view(1, 1, 1, 1)  # (no host read: the graph holds the choice)
+        first = torch.where(use, self.no_answers.sample(answered), negatives[:answered])
+        return torch.cat([first, negatives[answered:]])
 
     def take_metrics(self) -> dict[str, float]:
         return self.metrics.take()

@@ -36,7 +36,7 @@ length. Everything else is one default for every task."""
 PRESETS: dict[str, dict[str, int]] = {
     "VisualPusher-v0": {"query_every": 5000, "query_budget": 20},
     "VisualDoor-v0": {"query_every": 1000, "query_budget": 50},
-    "VisualPicker-v0": {"query_every": 2000, "query_budget": 20},
+    "VisualPicker-v0": {"query_every": 1000, "query_budget": 50},
     "VisualBookshelf-v0": {"query_every": 750, "query_budget": 20},
     "VisualDraping-v0": {"query_every": 750, "query_budget": 20},
 }

@@ -57,21 +57,18 @@ def test_a_task_preset_sets_only_what_the_paper_set_per_task() -> None:
 def test_the_paper_preset_is_the_published_algorithm_whatever_the_defaults() -> None:
     paper = TrainConfig.paper()
     assert (paper.classifier_steps, paper.classifier_lr, paper.no_answer_share) == (10, 1e-4, 0.0)
-    assert paper.recent_negative_share == 0.0  # uniform replay negatives
     assert (paper.encoder, paper.shared_encoder, paper.augmentation) == ("paper", False, "none")
     assert (paper.updates_per_step, paper.critic_layer_norm) == (1, False)
     assert paper.exploration_noise_beta == 0.0  # SAC's i.i.d. action noise
-    assert TrainConfig().no_answer_share == 0.1
+    assert TrainConfig().no_answer_share == 0.25
 
 
 @pytest.mark.parametrize(
-    ("name", "before", "now"),
-    [("critic_layer_norm", False, True), ("exploration_noise_beta", 0.0, 1.0), ("recent_negative_share", 0.0, 0.1)],
+    ("name", "before", "now"), [("critic_layer_norm", False, True), ("exploration_noise_beta", 0.0, 1.0)]
 )
 def test_a_run_stored_before_a_field_resumes_as_it_ran(name: str, before: object, now: object) -> None:
     """A stored config without the field (runs from before it) keeps what they ran with (SAC's critics, i.i.d.
-    action noise, uniform replay negatives); new runs get the new default (LayerNorm critics, pink noise, a tenth
-    of the negatives from the last epoch)."""
+    action noise); new runs get the new default (LayerNorm critics, pink noise)."""
     stored = {field: value for field, value in TrainConfig().to_dict().items() if field != name}
     assert getattr(TrainConfig.from_dict(stored), name) == before
     assert getattr(TrainConfig(), name) == now

@@ -223,35 +223,3 @@ def test_no_answers_join_a_share_of_the_vice_raq_negatives_on_host_and_device() 
         for batch in (host.negatives(), device.negatives_on_device().numpy()):
             from_answers = [i for i, image in enumerate(batch) if any(np.array_equal(image, n) for n in no_images)]
             assert from_answers == list(range(expected))
-
-
-def test_recent_negatives_come_from_the_last_epoch_on_host_and_device() -> None:
-    """recent_negative_share=0.5 with epoch_steps=10: after the replay's ring has wrapped, the first half of each
-    batch of negatives is the s' of one of the last 10 transitions (host and device alike), the rest from anywhere
-    in the replay; at 0 (the paper) the batch is uniform replay."""
-    rng = np.random.default_rng(3)
-    torch.manual_seed(3)
-    replay = ReplayBuffer(50, (SIZE, SIZE, 3), 2)
-    filled(replay, 125, rng)  # (the ring of 50 has wrapped: the newest transition sits at index 24)
-    newest = [(replay.added - 1 - back) % replay.capacity for back in range(10)]
-    recent = {replay.frames[replay.next_slot[index]].tobytes() for index in newest}
-    spec = ALGORITHM_SPECS["vice"]
-    for share, expected in ((0.5, 16), (0.0, 0)):
-        config = tiny(
-            algorithm="vice", replay_pipeline="device", classifier_batch_size=32, epoch_steps=10,
-            no_answer_share=0.0, recent_negative_share=share,
-        )  # fmt: skip
-        agent = SACAgent.for_run(config, action_dim=2)
-        model = RewardModel.for_run(config, rng)
-        model.goals = rng.integers(0, 256, (4, SIZE, SIZE, 3), dtype=np.uint8)
-        device = DeviceUpdates(config, agent=agent, replay=replay, reward_model=model, spec=spec, rng=rng)
-        device.classifier_step(accuracy=False)  # (syncs the mirror)
-        for batch in (device.host.negatives(), device.negatives_on_device().numpy()):
-            is_recent = [image.tobytes() in recent for image in batch]
-            assert all(is_recent[:expected]), is_recent
-            assert not all(is_recent[expected:]), is_recent  # (uniform: 40 of the 50 stored are older)
-
-
-def test_negative_shares_above_one_together_are_refused() -> None:
-    with pytest.raises(ValueError, match="recent_negative_share"):
-        TrainConfig(no_answer_share=0.6, recent_negative_share=0.5)
